@@ -1,0 +1,1 @@
+"""System identification for seekopt: seek logs, plant models and estimators (see docs/ARCHITECTURE.md)."""
