@@ -1,0 +1,210 @@
+"""The ``seekopt`` command line: a thin layer over the Python API.
+
+Every command reports bad input as one line on stderr naming the file and the
+problem, and exits with status 2; outputs are written atomically.
+
+Each ``cmd_*`` function below maps parsed arguments onto the API of one module;
+the logic lives in those modules.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+__all__ = ["main", "build_parser", "UsageError"]
+
+
+class UsageError(ValueError):
+    """Bad command-line input (reported as one line, exit status 2)."""
+
+
+def _input_errors() -> tuple:
+    from identification.logs import LogError
+    from identification.plant import PlantError
+    from .controller import ControllerError
+    from .profiles import ProfileError
+    errs = [UsageError, LogError, PlantError, ControllerError, ProfileError, FileNotFoundError,
+            IsADirectoryError, PermissionError]
+    try:
+        from .ocp import DesignInfeasible
+        errs.append(DesignInfeasible)
+    except ImportError:
+        pass
+    return tuple(errs)
+
+
+def _load_plant(path):
+    from identification.plant import ModalPlant
+    return ModalPlant.load(path)
+
+
+def _load_controller(path):
+    from .controller import Controller
+    return Controller.nss() if path is None else Controller.from_json(path)
+
+
+def _parse_effect(text: str) -> dict:
+    """``name:key=value,key=value`` (lists as ``a;b;c``) -> effect dict."""
+    name, _, rest = text.partition(":")
+    params = {}
+    for item in filter(None, rest.split(",")):
+        k, eq, v = item.partition("=")
+        if not eq:
+            raise UsageError(f"--effect {text!r}: expected key=value, got {item!r}")
+        try:
+            params[k.strip()] = [float(x) for x in v.split(";")] if ";" in v else float(v)
+        except ValueError:
+            raise UsageError(f"--effect {text!r}: {k} is not a number") from None
+    from identification.effects import effect_from_dict
+    try:
+        return effect_from_dict({"effect": name.strip(), "params": params}).to_dict()
+    except (TypeError, ValueError) as exc:
+        raise UsageError(f"--effect {text!r}: {exc}") from None
+
+
+# ------------------------------------------------------------------ commands
+def cmd_synth(args) -> int:
+    from identification.logs import write_log
+    from .synth import SynthConfig, synthesize
+    cfg = SynthConfig(n_seeks=args.seeks, seed=args.seed, imax_a=args.imax, noise=not args.no_noise,
+                      rro=not args.no_rro, rro_scale=args.rro_scale,
+                      effects=[_parse_effect(e) for e in args.effect])
+    plant = _load_plant(args.plant) if args.plant else None
+    log, truth = synthesize(cfg, plant=plant, controller=_load_controller(args.controller))
+    write_log(log, args.output)
+    if args.truth:
+        truth.to_json(args.truth)
+    print(f"wrote {args.output}: {log.n} samples, {args.seeks} seeks at {log.sample_rate_hz:g} Hz")
+    return 0
+
+
+def cmd_identify(args) -> int:
+    raise NotImplementedError("identify: not wired yet")
+
+
+def cmd_design(args) -> int:
+    raise NotImplementedError("design: not wired yet")
+
+
+def cmd_bench(args) -> int:
+    raise NotImplementedError("bench: not wired yet")
+
+
+def cmd_loop(args) -> int:
+    raise NotImplementedError("loop: not wired yet")
+
+
+def cmd_sweep(args) -> int:
+    raise NotImplementedError("sweep: not wired yet")
+
+
+def cmd_export(args) -> int:
+    raise NotImplementedError("export: not wired yet")
+
+
+def cmd_demo(args) -> int:
+    raise NotImplementedError("demo: not wired yet")
+
+
+# ------------------------------------------------------------------ parser
+def build_parser() -> argparse.ArgumentParser:
+    from . import __version__
+    p = argparse.ArgumentParser(prog="seekopt", description=__doc__.splitlines()[0])
+    p.add_argument("--version", action="version", version=f"seekopt {__version__}")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    s = sub.add_parser("synth", help="run the synthetic drive and write a seek log")
+    s.add_argument("-o", "--output", required=True, help="log file (.csv, .npz or .mat)")
+    s.add_argument("--seeks", type=int, default=120)
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--imax", type=float, default=0.3, help="seek current limit [A]")
+    s.add_argument("--plant", help="truth plant JSON (default: NSS v2 + seek modes)")
+    s.add_argument("--controller", help="controller JSON (default: NSS PID + notch)")
+    s.add_argument("--effect", action="append", default=[],
+                   help="undeclared effect, e.g. friction:coulomb_a=0.002 (repeatable)")
+    s.add_argument("--no-noise", action="store_true")
+    s.add_argument("--no-rro", action="store_true")
+    s.add_argument("--rro-scale", type=float, default=1.0)
+    s.add_argument("--truth", help="also write the truth plant JSON here")
+    s.set_defaults(func=cmd_synth)
+
+    s = sub.add_parser("identify", help="identify the modal plant from a seek log")
+    s.add_argument("log")
+    s.add_argument("-o", "--output", help="plant JSON")
+    s.add_argument("--method", choices=["robust", "paper"], default="robust")
+    s.add_argument("--figures", help="folder for figures")
+    s.set_defaults(func=cmd_identify)
+
+    s = sub.add_parser("design", help="design an optimal seek profile")
+    s.add_argument("--plant", required=True)
+    s.add_argument("--controller")
+    s.add_argument("--tracks", type=float, required=True)
+    s.add_argument("--imax", type=float, required=True)
+    s.add_argument("--settle", type=float, default=0.1, help="settle band [track]")
+    s.add_argument("--robust", nargs="?", const="default", default=None,
+                   help="robust design: e.g. freq=5,zeta=30,gain=30,delay=2e-6 (percent / s)")
+    s.add_argument("-o", "--output", required=True, help="profile CSV")
+    s.set_defaults(func=cmd_design)
+
+    s = sub.add_parser("bench", help="benchmark optimal profiles against sine and windowed sine")
+    s.add_argument("--plant", required=True)
+    s.add_argument("--controller")
+    s.add_argument("--truth", help="evaluate on this plant (default: the design plant)")
+    s.add_argument("--tracks", type=float, default=200.0)
+    s.add_argument("--imax", type=float, required=True)
+    s.add_argument("--settle", type=float, default=0.1)
+    s.add_argument("--figures", help="folder for Fig. 9/10-style plots")
+    s.set_defaults(func=cmd_bench)
+
+    s = sub.add_parser("loop", help="close the loop: residual analysis and model augmentation")
+    s.add_argument("log")
+    s.add_argument("--validate", help="validation log (default: held-out seeks)")
+    s.add_argument("--report", required=True, help="report JSON")
+    s.add_argument("--figures", help="folder for residual figures and the Markdown report")
+    s.set_defaults(func=cmd_loop)
+
+    s = sub.add_parser("sweep", help="sweep designs over TPI and seek length")
+    s.add_argument("--plant", required=True)
+    s.add_argument("--controller")
+    s.add_argument("--tpi", required=True, help="start:stop:count in TPI, e.g. 200k:1000k:9")
+    s.add_argument("--tracks", required=True, help="comma-separated seek lengths")
+    s.add_argument("--imax", type=float, required=True)
+    s.add_argument("--settle", type=float, default=0.1)
+    s.add_argument("--dask", help="'local' or tcp://HOST:PORT")
+    s.add_argument("--workers", type=int, default=None)
+    s.add_argument("-o", "--output", required=True, help="results folder")
+    s.set_defaults(func=cmd_sweep)
+
+    s = sub.add_parser("export", help="export feedforward tables for firmware")
+    s.add_argument("results")
+    s.add_argument("--format", choices=["c", "csv", "json"], default="c")
+    s.add_argument("-o", "--output", required=True)
+    s.set_defaults(func=cmd_export)
+
+    s = sub.add_parser("demo", help="the whole pipeline on the bundled sample log")
+    s.add_argument("log", nargs="?")
+    s.add_argument("-o", "--output", default="seekopt-out")
+    s.add_argument("--quick", action="store_true", help="fewer seek lengths (for tests)")
+    s.set_defaults(func=cmd_demo)
+    return p
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except _input_errors() as exc:
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        if isinstance(exc, (FileNotFoundError, IsADirectoryError, PermissionError)) and exc.filename:
+            msg = f"{exc.filename}: {exc.strerror}"
+        print(f"seekopt {args.command}: error: {msg}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"seekopt {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
