@@ -27,8 +27,10 @@ import json
 import math
 import os
 import re
+import struct
 import tempfile
 import zipfile
+import zlib
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
@@ -331,9 +333,48 @@ def _read_npz(name: str, raw: bytes):
     return _split_entries(name, entries)
 
 
+_MI_TYPES = frozenset({1, 2, 3, 4, 5, 6, 7, 9, 12, 13, 14, 15, 16, 17, 18})
+
+
+def _walk_mat5(buf: bytes, endian: str, depth: int = 0) -> None:
+    """Check every MAT v5 element tag (type, size) and recurse into matrices/compressed data.
+
+    scipy's compiled reader can crash the interpreter (segfault) on corrupt tags, so a file
+    must pass this walk before it reaches ``loadmat``.
+    """
+    if depth > 40:
+        raise ValueError("elements nested too deeply")
+    pos = 0
+    while pos < len(buf):
+        if len(buf) - pos < 8:
+            raise ValueError(f"truncated element tag at byte {pos}")
+        mdtype, nbytes = struct.unpack_from(endian + "II", buf, pos)
+        if mdtype >> 16:  # small data element: 2-byte size, 2-byte type, 4 data bytes
+            mdtype, nbytes, step = mdtype & 0xFFFF, mdtype >> 16, 8
+            if nbytes > 4:
+                raise ValueError(f"bad small element at byte {pos}")
+        else:
+            step = 8 + nbytes + (0 if mdtype == 15 else -nbytes % 8)
+            if pos + 8 + nbytes > len(buf):
+                raise ValueError(f"element at byte {pos} runs past the end")
+        if mdtype not in _MI_TYPES:
+            raise ValueError(f"unknown element type {mdtype} at byte {pos}")
+        if mdtype in (14, 15):
+            body = buf[pos + 8:pos + 8 + nbytes]
+            _walk_mat5(body if mdtype == 14 else zlib.decompress(body), endian, depth + 1)
+        pos += step
+
+
 def _read_mat(name: str, raw: bytes):
     from scipy.io import loadmat
+    from scipy.io.matlab import matfile_version
     try:
+        major = matfile_version(io.BytesIO(raw))[0]
+        if major != 1:
+            raise ValueError(f"MAT {('v4', 'v5', 'v7.3 (HDF5)')[major]} files are not supported; use v5/v7")
+        if raw[126:128] not in (b"IM", b"MI"):
+            raise ValueError("bad endian indicator")
+        _walk_mat5(raw[128:], "<" if raw[126:128] == b"IM" else ">")
         d = loadmat(io.BytesIO(raw), simplify_cells=True)
     except Exception as exc:  # scipy raises many types on garbage
         raise LogError(name, f"unreadable .mat file ({_why(exc)})") from None

@@ -45,10 +45,6 @@ def _arr(x, what, src):
     return a
 
 
-def _ss_key(d, k):
-    return d[k] if k in d else d[k.lower()]
-
-
 def _normalise_section(sec, default_m, where):
     """Return a canonical section dict (validated) from any accepted section form."""
     if not isinstance(sec, dict):
@@ -63,9 +59,8 @@ def _normalise_section(sec, default_m, where):
         raise ControllerError(f"{where} ({kind}): rate_multiple {m!r} is not an integer >= 1")
     out = {"kind": kind}
     if kind == "tf":
-        for k in ("num", "den"):
-            if k not in sec:
-                raise ControllerError(f"{where} (tf): missing key '{k}'")
+        if "num" not in sec or "den" not in sec:
+            raise ControllerError(f"{where} (tf): missing key 'num' or 'den'")
         num, den = _arr(sec["num"], "tf num", where), _arr(sec["den"], "tf den", where)
         if num.ndim != 1 or den.ndim != 1:
             raise ControllerError(f"{where} (tf): bad shapes, num and den must be flat lists "
@@ -73,8 +68,7 @@ def _normalise_section(sec, default_m, where):
         num, den = np.trim_zeros(num, "f"), np.trim_zeros(den, "f")
         if den.size == 0:
             raise ControllerError(f"{where} (tf): denominator is zero")
-        if num.size == 0:
-            num = np.zeros(1)
+        num = num if num.size else np.zeros(1)
         if num.size > den.size:
             raise ControllerError(f"{where} (tf): improper (numerator degree {num.size - 1} > "
                                   f"denominator degree {den.size - 1})")
@@ -82,7 +76,7 @@ def _normalise_section(sec, default_m, where):
         out.update(num=num.tolist(), den=den.tolist())
     else:
         try:
-            A, B, C, D = (_ss_key(sec, k) for k in "ABCD")
+            A, B, C, D = (sec[k] if k in sec else sec[k.lower()] for k in "ABCD")
         except KeyError:
             raise ControllerError(f"{where} (ss): missing key (needs A, B, C, D)") from None
         A = _arr(A, "ss A", where)
@@ -168,18 +162,16 @@ class Controller:
             raise ControllerError(f"{src}: controller has no sections")
         self.sections = [_normalise_section(s, 1, f"{src}: section {i}") for i, s in enumerate(self.sections, 1)]
         ms = [s["rate_multiple"] for s in self.sections]
-        for i in range(1, len(ms)):
-            if ms[i] < ms[i - 1]:
-                raise ControllerError(f"{src}: rate_multiple decreases along the cascade "
-                                      f"(section {i + 1}: {ms[i]} after {ms[i - 1]})")
+        bad = [i for i in range(1, len(ms)) if ms[i] < ms[i - 1]]
+        if bad:
+            raise ControllerError(f"{src}: rate_multiple decreases along the cascade "
+                                  f"(section {bad[0] + 1}: {ms[bad[0]]} after {ms[bad[0] - 1]})")
         self._groups = []  # [(m, A, B, C, D)] one combined state space per rate
         for m in sorted(set(ms)):
-            sys_ = None
-            for s in self.sections:
-                if s["rate_multiple"] == m:
-                    ss = _section_ss(s)
-                    sys_ = ss if sys_ is None else _series(sys_, ss)
-            self._groups.append((m,) + sys_)
+            parts = [_section_ss(s) for s in self.sections if s["rate_multiple"] == m]
+            for ss in parts[1:]:
+                parts[0] = _series(parts[0], ss)
+            self._groups.append((m,) + tuple(parts[0]))
 
     # ---------------------------------------------------------------- construction / IO
     @classmethod
@@ -430,11 +422,9 @@ def loop_analysis(controller: Controller, plant_frf, freqs_hz, zoh: bool = True)
     S = 1.0 / (1.0 + Lf)
     T = Lf * S
 
-    def roots(g, mask):
-        out = []
-        for i in np.nonzero(mask)[0]:
-            out.append(optimize.brentq(lambda x: g(Lfun(x)[0]), f[i], f[i + 1], xtol=1e-9 * f[i]))
-        return out
+    def roots(g, mask):  # refine each bracketing grid interval exactly
+        return [optimize.brentq(lambda x: g(Lfun(x)[0]), f[i], f[i + 1], xtol=1e-9 * f[i])
+                for i in np.nonzero(mask)[0]]
 
     lm = np.log(np.abs(Lf))
     wc = roots(lambda v: np.log(abs(v)), np.sign(lm[:-1]) != np.sign(lm[1:]))
