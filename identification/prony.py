@@ -42,7 +42,8 @@ class PencilDiagnostics:
     complex exponentials, 2 per mode), ``order_mdl`` (MDL's choice, None if the order was given),
     ``sv_noise`` (noise RMS per Hankel entry estimated from the singular values), ``sv_threshold``,
     ``sigma`` (noise std per sample from the LS fit residual), ``pencil`` (L), ``n_windows`` used,
-    ``candidates`` (all pencil poles) and ``rejected`` (list of ``(z, reason)``).
+    ``candidates`` (all pencil poles), ``rejected`` (list of ``(z, reason)``) and ``significance``
+    (list of ``(z, T)``: the amplitude statistic of every pole that reached the amplitude test).
     """
     singular_values: np.ndarray
     order: int
@@ -55,6 +56,7 @@ class PencilDiagnostics:
     hankel_shape: tuple
     candidates: np.ndarray
     rejected: list = field(default_factory=list)
+    significance: list = field(default_factory=list)
 
 
 # ----------------------------------------------------------------------------------- conversions
@@ -178,7 +180,7 @@ def _real_basis(n, zs):
 
 
 def matrix_pencil(windows, fs, order=None, max_order=24, pencil=None, *, min_len=32, noise_gate=1.6,
-                  max_zeta=0.5, freq_range=None, keep_real=False, keep_unstable=False, amp_sigmas=3.0,
+                  max_zeta=0.5, freq_range=None, keep_real=False, keep_unstable=False, amp_sigmas=4.0,
                   refine=False):
     """Pooled matrix-pencil (Hua–Sarkar) estimate of the damped modes common to several windows.
 
@@ -301,6 +303,7 @@ def matrix_pencil(windows, fs, order=None, max_order=24, pencil=None, *, min_len
             amps.append(np.linalg.norm(a))
             energies.append(float(np.sum((Phi[:, idx] @ a) ** 2)))
         stat /= len(idx) * len(ws)
+        diag.significance.append((complex(z), stat))
         if stat < amp_sigmas ** 2:
             diag.rejected.append((z, f"amplitude T={stat:.3g} < {amp_sigmas ** 2:.3g}"))
             continue

@@ -171,19 +171,6 @@ def test_pid_dc_integrator():
     assert abs(lo) == pytest.approx(slope * dc * FS / (2 * np.pi * 0.1), rel=1e-3)
 
 
-def test_runtime_speed():
-    rt = Controller.nss().runtime()
-    e = np.random.default_rng(4).standard_normal(20000).tolist()
-    best = np.inf
-    for _ in range(3):
-        t = time.perf_counter()
-        for x in e:
-            rt.step(x)
-        best = min(best, (time.perf_counter() - t) / len(e) * 1e6)
-    print(f"\nruntime.step: {best:.2f} us per PES sample (L = 2, 10 states)")
-    assert best < 15.0
-
-
 # ------------------------------------------------------------------ validation
 GOOD_TF = {"kind": "tf", "num": [1.0, -0.5], "den": [1.0, -0.9]}
 GOOD_SS = {"kind": "ss", "A": [[0.5, 0.1], [0.0, 0.2]], "B": [1.0, 0.0], "C": [0.0, 1.0], "D": 0.0}
