@@ -31,6 +31,13 @@ def _input_errors() -> tuple:
         errs.append(DesignInfeasible)
     except ImportError:
         pass
+    try:
+        from .demo import DemoError
+        from .export import ExportError
+        from .sweep import SweepError
+        errs += [SweepError, ExportError, DemoError]
+    except ImportError:
+        pass
     return tuple(errs)
 
 
@@ -96,15 +103,36 @@ def cmd_loop(args) -> int:
 
 
 def cmd_sweep(args) -> int:
-    raise NotImplementedError("sweep: not wired yet")
+    from .sweep import SweepConfig, parse_tpi, parse_tracks, run_sweep
+    cfg = SweepConfig(_load_plant(args.plant), _load_controller(args.controller), parse_tpi(args.tpi),
+                      parse_tracks(args.tracks), args.imax, args.settle)
+    engine = args.dask or "process"
+    s = run_sweep(cfg, args.output, engine=engine, workers=args.workers)
+    print(f"sweep: {s.total} cells ({s.skipped} saved before, {s.computed} computed in {s.wall_s:.1f} s "
+          f"on {s.engine}, {s.cells_per_s:.2f} cells/s); table {s.table}")
+    if s.failed_cells:
+        print(f"sweep: {len(s.failed_cells)} cells with a failed design or evaluation (see 'error' column): "
+              + ", ".join(s.failed_cells[:5]) + (" ..." if len(s.failed_cells) > 5 else ""))
+    if s.engine_errors:
+        print(f"sweep: {len(s.engine_errors)} cells not computed (engine errors, rerun to retry): "
+              + next(iter(s.engine_errors.values())), file=sys.stderr)
+        return 1
+    return 0
 
 
 def cmd_export(args) -> int:
-    raise NotImplementedError("export: not wired yet")
+    from .export import load_tables, write_tables
+    ts = load_tables(args.results)
+    paths = write_tables(ts, args.format, args.output)
+    print(f"export: {len(ts.tables)} tables ({len(ts.tpis)} TPI x {len(ts.lengths)} lengths, "
+          f"{ts.meta['ref_format']} reference) -> " + ", ".join(map(str, paths)))
+    return 0
 
 
 def cmd_demo(args) -> int:
-    raise NotImplementedError("demo: not wired yet")
+    from .demo import DemoConfig, run_demo
+    run_demo(DemoConfig(log=args.log, outdir=args.output, quick=args.quick))
+    return 0
 
 
 # ------------------------------------------------------------------ parser

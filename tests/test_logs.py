@@ -291,12 +291,34 @@ def test_bad_npz_and_mat_contents(tmp_path):
     expect_error(tmp_path / "s.npz", "current_a", "not numeric")
     np.savez(tmp_path / "l.npz", **{**cols, "current_a": cols["current_a"][:-1]}, metadata='{"sample_rate_hz": 1e4}')
     expect_error(tmp_path / "l.npz", "current_a", "199 values")
+    np.savez(tmp_path / "o.npz", **cols, metadata='{"sample_rate_hz": 1%s}' % ("0" * 400))
+    expect_error(tmp_path / "o.npz", "sample_rate_hz", "not a number")
+    np.savez(tmp_path / "i.npz", **cols, metadata='{"sample_rate_hz": 1e999}')
+    expect_error(tmp_path / "i.npz", "sample_rate_hz", "finite")
     np.save(tmp_path / "a.npy", np.arange(5))
     os.rename(tmp_path / "a.npy", tmp_path / "a.npz")
     expect_error(tmp_path / "a.npz", "unreadable .npz")
     from scipy.io import savemat
     savemat(tmp_path / "m.mat", {**cols, "metadata": '{"sample_rate_hz": 1e4}', "pos2d": np.zeros((200, 2))})
     expect_error(tmp_path / "m.mat", "pos2d", "1-D")
+
+
+def test_corrupt_mat_never_reaches_scipy_crash(tmp_path):
+    """Corruptions that segfault scipy's compiled loadmat (seen while fuzzing) must become LogError."""
+    from scipy.io import savemat
+    base = logs._mat_bytes("x", make_log())
+    assert base[184] == 9 and base[145] == 0  # data-element type of the 1st variable; its flags byte
+    expect_error(_write(tmp_path, "type.mat", base[:184] + bytes([125]) + base[185:]), "corrupt element")
+    expect_error(_write(tmp_path, "cplx.mat", base[:145] + bytes([8]) + base[146:]), "complex")
+    cols = {c: getattr(make_log(), c) for c in logs.COLUMNS}
+    savemat(tmp_path / "v4.mat", cols, format="4")
+    expect_error(tmp_path / "v4.mat", "v4")
+    savemat(tmp_path / "cell.mat", {**cols, "c": np.array([[1, "a"]], dtype=object)})
+    expect_error(tmp_path / "cell.mat", "unsupported MATLAB class")
+    for compress in (False, True):  # MATLAB-style compressed files with struct metadata are fine
+        savemat(tmp_path / "ok.mat", {**cols, "metadata": {"sample_rate_hz": FS}, "flag": np.arange(200) % 2 == 0},
+                do_compression=compress)
+        np.testing.assert_array_equal(read_log(tmp_path / "ok.mat").extra["flag"], np.arange(200) % 2 == 0)
 
 
 # ------------------------------------------------------------------------------------------ fuzzing
@@ -360,17 +382,7 @@ def test_fuzz_mangled_csv(tmp_path, edits):
     check_outcome(path)
 
 
-def _binary(ext):
-    buf = io.BytesIO()
-    log = make_log(n=70)
-    if ext == ".npz":
-        data = logs._npz_bytes("x", log)
-    else:
-        data = logs._mat_bytes("x", log)
-    return buf.getvalue() + data
-
-
-_BINARIES = {ext: _binary(ext) for ext in (".npz", ".mat")}
+_BINARIES = {".npz": logs._npz_bytes("x", make_log(n=70)), ".mat": logs._mat_bytes("x", make_log(n=70))}
 
 
 @FUZZ

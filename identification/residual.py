@@ -1,0 +1,534 @@
+"""Output-error residual of a plant model on a seek log, and its analysis.
+
+The model is simulated from the *measured* current with the one discretisation
+(:class:`identification.plant.DiscretePlant`).  The rigid body integrates any
+force error twice, so the simulation is **re-anchored per window** (by default
+one window per seek, from the target change to the next one): in each window
+the rigid-body position and velocity at the window start are linear nuisance
+parameters fitted by least squares; modes, amplifier and delay-line states carry
+over from the previous window.  ``residual = measured - simulated`` [track].
+
+Two equivalent engines:
+
+* :func:`simulate` steps ``DiscretePlant`` sample by sample (effects evaluated
+  on the simulated state) -- the reference used for reported errors;
+* :class:`LinearModel` filters through the *same* ``Phi``/``Gamma`` blocks of
+  ``DiscretePlant`` with ``scipy.signal.lfilter`` (exactly equal for the linear
+  part, ~100x faster), used to fit candidate effects
+  (:mod:`identification.candidates`).
+
+Analysis (all pooled over windows, never across a gap): auto- and
+cross-correlation with coloured-signal confidence bands (:func:`correlations`),
+Welch spectra and coherence of residual vs current (:func:`spectra`),
+synchronous average over spindle revolutions (:func:`synchronous_average`,
+:func:`detect_spindle`) and Billings-Zhu / Billings-Voon nonlinear correlation
+tests (:func:`nonlinear_tests`).  Dependence of the residual on position,
+velocity sign, |current| and current x position is measured in
+:func:`identification.candidates.dependence`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import lfilter, lfilter_zi, savgol_filter
+
+from .effects import AmplifierLag
+from .logs import SeekLog, segment_seeks
+from .plant import ModalPlant
+
+__all__ = ["Windows", "seek_windows", "LinearModel", "Residual", "simulate", "residual",
+           "fit_percent", "velocity_estimate", "eval_inputs", "eval_forces", "eval_outputs",
+           "pooled_xcorr", "CorrelationTest", "correlations", "Spectra", "spectra", "detect_spindle",
+           "synchronous_average", "nonlinear_tests"]
+
+
+# ----------------------------------------------------------------------------- windows
+@dataclass
+class Windows:
+    """Half-open index ranges ``[a, b)`` into a log, each simulated with its own anchor."""
+
+    bounds: list
+
+    def __len__(self) -> int:
+        return len(self.bounds)
+
+    @property
+    def n_samples(self) -> int:
+        return int(sum(b - a for a, b in self.bounds))
+
+    def index(self) -> np.ndarray:
+        """Concatenated sample indices of all windows."""
+        return np.concatenate([np.arange(a, b) for a, b in self.bounds]) if self.bounds \
+            else np.zeros(0, int)
+
+    def subset(self, sel) -> "Windows":
+        return Windows([self.bounds[i] for i in sel])
+
+    def split(self, n: int) -> list:
+        """``n`` interleaved subsets (window i goes to subset ``i % n``)."""
+        return [Windows(self.bounds[i::n]) for i in range(n)]
+
+
+def seek_windows(log: SeekLog, min_len: int = 32, max_len: int | None = None) -> Windows:
+    """One window per seek (target change to next target change) [samples].
+
+    Windows shorter than ``min_len`` are dropped; longer than ``max_len`` are split.
+    If the log has no target change, fixed windows of ``max_len`` (default 512) are used.
+    """
+    seeks = segment_seeks(log)
+    out = []
+    if seeks:
+        spans = [(s.start, s.end) for s in seeks]
+    else:
+        step = max_len or 512
+        spans = [(a, min(a + step, log.n)) for a in range(0, log.n, step)]
+    for a, b in spans:
+        if max_len:
+            while b - a > max_len + min_len:
+                out.append((a, a + max_len)); a += max_len
+        if b - a >= min_len:
+            out.append((int(a), int(b)))
+    return Windows(out)
+
+
+# ---------------------------------------------------------------- vectorised effects
+def velocity_estimate(log: SeekLog, window: int = 9) -> np.ndarray:
+    """Head velocity [track/s] from the measured position (Savitzky-Golay derivative)."""
+    w = min(window | 1, (log.n - 1) | 1 if log.n % 2 == 0 else log.n)
+    return savgol_filter(log.position_track, max(w, 5), 2, deriv=1, delta=log.dt)
+
+
+def eval_inputs(effects, u: np.ndarray, position: np.ndarray) -> np.ndarray:
+    """Apply ``input`` effects (in order) to a current array [A] at ``position`` [track]."""
+    from .effects import CurrentSaturation, TorqueConstantVariation
+    for e in effects:
+        if e.kind != "input":
+            continue
+        if isinstance(e, CurrentSaturation):
+            u = np.clip(u, -e.limit_a, e.limit_a)
+        elif isinstance(e, TorqueConstantVariation):
+            u = u * e.factor(position)
+        else:
+            u = np.array([e.input_map(float(a), float(p)) for a, p in zip(u, position)])
+    return u
+
+
+def eval_forces(plant: ModalPlant, position: np.ndarray, velocity: np.ndarray,
+                v_scale: float = 0.0) -> np.ndarray:
+    """Undelayed current-equivalent force [A]: bias, pivot rest offset, ``force`` effects.
+
+    ``v_scale`` [track/s] smooths ``sign(v)`` as ``tanh(v / v_scale)`` (velocity estimated
+    from a noisy position: near zero velocity its sign is unknown)."""
+    from .effects import Friction, PivotSpringDamper, PositionBias
+    f = np.full(len(position), float(plant.bias_a))
+    for e in plant.effects:
+        if isinstance(e, PivotSpringDamper):
+            f += (2 * np.pi * e.freq_hz) ** 2 * e.rest_track / plant.k0
+        elif isinstance(e, PositionBias):
+            f += np.interp(position, e.knots_track, e.bias_a)
+        elif isinstance(e, Friction):
+            s = np.tanh(velocity / v_scale) if v_scale > 0 else np.sign(velocity)
+            f += -e.coulomb_a * s - e.viscous_a_per_tps * velocity
+        elif e.kind == "force":
+            f += np.array([e.force(float(p), float(v)) for p, v in zip(position, velocity)])
+    return f
+
+
+def eval_outputs(effects, t: np.ndarray) -> np.ndarray:
+    """Sum of ``output`` effects [track] at times ``t`` [s]."""
+    out = np.zeros(len(t))
+    for e in effects:
+        if e.kind == "output":
+            out += e.output(t)
+    return out
+
+
+# ------------------------------------------------------------------ linear engine
+def _tf2(Phi: np.ndarray, c: np.ndarray, g: np.ndarray):
+    """Numerator ``[n1, n0]`` and denominator ``[1, a1, a2]`` of ``c (zI - Phi)^-1 g`` (2x2)."""
+    (p00, p01), (p10, p11) = Phi
+    n1 = c[0] * g[0] + c[1] * g[1]
+    n0 = -c[0] * p11 * g[0] + c[0] * p01 * g[1] + c[1] * p10 * g[0] - c[1] * p00 * g[1]
+    return np.array([n1, n0]), np.array([1.0, -(p00 + p11), p00 * p11 - p01 * p10])
+
+
+class LinearModel:
+    """The linear part of ``plant.discretize(dt)`` as parallel 2-state blocks + lfilter.
+
+    ``DiscretePlant``'s ``Phi`` is block diagonal (rigid body, each mode) apart from
+    the amplifier-lag column, so each block is exactly a 2nd-order filter of the
+    delayed command (``Gamma_new``/``Gamma_old``), of the lag state and of the undelayed
+    force channel.  Outputs match ``DiscretePlant.output`` (before the step) exactly.
+    """
+
+    def __init__(self, plant: ModalPlant, dt: float):
+        self.plant, self.dt = plant, float(dt)
+        dp = plant.discretize(dt)
+        self.m = dp.m
+        Phi, n = dp.Phi, dp.n
+        self.lag = n - 1 if any(isinstance(e, AmplifierLag) for e in plant.effects) else None
+        nb = (n - (1 if self.lag is not None else 0)) // 2
+        self.blocks = []
+        for i in range(nb):
+            s = slice(2 * i, 2 * i + 2)
+            P, c = Phi[s, s], dp.C[s]
+            bn, a = _tf2(P, c, dp.G_new[s])
+            bo, _ = _tf2(P, c, dp.G_old[s])
+            bf, _ = _tf2(P, c, dp.G_f[s])
+            bl = _tf2(P, c, Phi[s, self.lag])[0] if self.lag is not None else None
+            self.blocks.append(dict(P=P, a=a, b_cmd=np.array([0.0, bn[0], bn[1] + bo[0], bo[1]]),
+                                    b_f=np.r_[0.0, bf], b_lag=None if bl is None else np.r_[0.0, bl]))
+        if self.lag is not None:
+            self.lag_b = np.array([0.0, dp.G_new[self.lag], dp.G_old[self.lag]])
+            self.lag_a = np.array([1.0, -Phi[self.lag, self.lag]])
+        off = Phi.copy()
+        for i in range(nb):
+            off[2 * i:2 * i + 2, 2 * i:2 * i + 2] = 0
+        if self.lag is not None:
+            off[:, self.lag] = 0
+        if np.abs(off).max() > 1e-9 * max(1.0, np.abs(Phi).max()):   # expm round-off only
+            raise ValueError("DiscretePlant is not block diagonal: unsupported structure")
+
+    def free_basis(self, length: int) -> np.ndarray:
+        """``(length, 2)`` rigid-block output from unit initial position / velocity."""
+        P = self.blocks[0]["P"]
+        out = np.empty((length, 2))
+        x = np.eye(2)
+        for k in range(length):
+            out[k] = x[0]
+            x = P @ x
+        return out
+
+    def _delayed(self, cmd: np.ndarray, hist: float) -> np.ndarray:
+        """``cmd[k - m]`` (``hist`` before the first sample)."""
+        return np.r_[np.full(self.m, hist), cmd[:len(cmd) - self.m]] if self.m else cmd
+
+    def response(self, cmd, force=None, windows: Windows | None = None, hist_cmd=None,
+                 hist_force=None, split: bool = False):
+        """Output [track] of the linear part (per sample, before each step).
+
+        Parameters
+        ----------
+        cmd : array
+            Command current entering the delay line at each step [A].
+        force : array or None
+            Undelayed current-equivalent force [A].
+        windows : Windows or None
+            If given, the rigid block is filtered per window from an arbitrary state at the
+            window start (its free response is the anchor nuisance; numerically clean);
+            samples outside the windows are then meaningless.  Otherwise the rigid block
+            starts at rest at sample 0.
+        hist_cmd, hist_force : float
+            Constant inputs before sample 0 (default the first samples): the flexible
+            blocks start in steady state for them.
+        split : bool
+            Return ``(rigid, flexible)`` separately.
+        """
+        cmd = np.asarray(cmd, float)
+        hc = float(cmd[0]) if hist_cmd is None else float(hist_cmd)
+        w = self._delayed(cmd, hc)
+        f = None if force is None else np.asarray(force, float)
+        hf = 0.0 if f is None else (float(f[0]) if hist_force is None else float(hist_force))
+        xl = None
+        if self.lag is not None:   # lag state, steady at the history before sample 0
+            xl = lfilter(self.lag_b, self.lag_a, w, zi=lfilter_zi(self.lag_b, self.lag_a) * hc)[0]
+        rigid = np.zeros(len(cmd))
+        flex = np.zeros(len(cmd))
+        for i, bl in enumerate(self.blocks):
+            terms = [(bl["b_cmd"], w, hc)]
+            if xl is not None:
+                terms.append((bl["b_lag"], xl, hc))
+            if f is not None:
+                terms.append((bl["b_f"], f, hf))
+            for b, x, h in terms:
+                if i > 0:
+                    flex += lfilter(b, bl["a"], x, zi=lfilter_zi(b, bl["a"]) * h)[0]
+                elif windows is None:
+                    rigid += lfilter(b, bl["a"], x)
+                else:
+                    for a0, b0 in windows.bounds:
+                        s = max(a0 - 4, 0)
+                        rigid[a0:b0] += lfilter(b, bl["a"], x[s:b0])[a0 - s:]
+        return (rigid, flex) if split else rigid + flex
+
+
+def _project(windows: Windows, basis_fn, *arrays):
+    """Remove, window by window, the least-squares fit of the anchor basis.
+
+    Returns the concatenated projected samples of each array (2-D arrays: per column)."""
+    outs = [[] for _ in arrays]
+    for a, b in windows.bounds:
+        Q, _ = np.linalg.qr(basis_fn(b - a))
+        for j, x in enumerate(arrays):
+            seg = x[a:b]
+            outs[j].append(seg - Q @ (Q.T @ seg))
+    return [np.concatenate(o) for o in outs]
+
+
+# ------------------------------------------------------------------------ results
+@dataclass
+class Residual:
+    """Measured minus simulated position on a set of windows.
+
+    Attributes
+    ----------
+    windows : Windows
+    e : ndarray
+        Residual [track] on the window samples (concatenated, see ``windows.index()``).
+    y_sim : ndarray
+        Simulated position [track], anchored, full log length (NaN outside windows).
+    log : SeekLog
+    """
+
+    windows: Windows
+    e: np.ndarray
+    y_sim: np.ndarray
+    log: SeekLog
+
+    @property
+    def rms(self) -> float:
+        return float(np.sqrt(np.mean(self.e ** 2)))
+
+    @property
+    def fit_percent(self) -> float:
+        return fit_percent(self.log, self.windows, self.e)
+
+    def full(self) -> np.ndarray:
+        """Residual on the full log grid (NaN outside windows)."""
+        out = np.full(self.log.n, np.nan)
+        out[self.windows.index()] = self.e
+        return out
+
+
+def fit_percent(log: SeekLog, windows: Windows, e: np.ndarray) -> float:
+    """NRMSE fit ``100 (1 - |e| / |y - mean_w(y)|)`` [%], ``mean_w`` the per-window mean."""
+    y = log.position_track
+    den = np.concatenate([y[a:b] - y[a:b].mean() for a, b in windows.bounds])
+    return float(100.0 * (1.0 - np.linalg.norm(e) / max(np.linalg.norm(den), 1e-300)))
+
+
+def simulate(plant: ModalPlant, log: SeekLog, windows: Windows, passes: int | None = None) -> Residual:
+    """Reference simulation: ``DiscretePlant`` stepped over the whole log from the measured
+    current, rigid states re-anchored at each window start, anchors fitted by LS.
+
+    Parameters
+    ----------
+    plant : ModalPlant
+        Model, effects included.
+    log : SeekLog
+    windows : Windows
+    passes : int, optional
+        Anchor passes; default 1 for plants whose effects do not depend on the state,
+        else 2 (the second starts from the anchors fitted by the first).
+    """
+    u, y, dt = log.current_a, log.position_track, log.dt
+    state_dep = any(e.kind in ("input", "force") for e in plant.effects)
+    passes = passes or (2 if state_dep else 1)
+    v = velocity_estimate(log)
+    anchors = {a: (y[a], v[a]) for a, _ in windows.bounds}
+    basis = LinearModel(plant.linear_part(), dt).free_basis
+    starts = {a: b for a, b in windows.bounds}
+    for _ in range(passes):
+        dp = plant.discretize(dt)
+        dp.reset(y[0], 0.0, current=u[0], t0=log.time_s[0])
+        ysim = np.empty(log.n)
+        for k in range(log.n):
+            if k in starts:
+                dp.x[0], dp.x[1] = anchors[k]
+            ysim[k] = dp.output()
+            dp.step(u[k])
+        e_parts, ys = [], np.full(log.n, np.nan)
+        for a, b in windows.bounds:
+            B = basis(b - a)
+            r = y[a:b] - ysim[a:b]
+            c, *_ = np.linalg.lstsq(B, r, rcond=None)
+            ys[a:b] = ysim[a:b] + B @ c
+            e_parts.append(r - B @ c)
+            anchors[a] = (anchors[a][0] + c[0], anchors[a][1] + c[1])
+    return Residual(windows, np.concatenate(e_parts) if e_parts else np.zeros(0), ys, log)
+
+
+def residual(plant: ModalPlant, log: SeekLog, windows: Windows | None = None) -> Residual:
+    """:func:`simulate` on :func:`seek_windows` by default."""
+    return simulate(plant, log, windows or seek_windows(log))
+
+
+# ------------------------------------------------------------------------ analysis
+def _segments(windows: Windows, *arrays):
+    """Per-window, mean-removed segments of full-length arrays."""
+    return [[x[a:b] - x[a:b].mean() for a, b in windows.bounds] for x in arrays]
+
+
+def pooled_xcorr(xs: list, ys: list, max_lag: int) -> np.ndarray:
+    """Normalised cross-correlation ``rho_xy(tau) = E[x(t) y(t - tau)]/(sx sy)`` for
+    ``tau = -max_lag..max_lag``, pooled over segments (products never cross a gap)."""
+    lags = np.arange(-max_lag, max_lag + 1)
+    acc = np.zeros(len(lags))
+    sxx = sum(float(x @ x) for x in xs)
+    syy = sum(float(y @ y) for y in ys)
+    for x, y in zip(xs, ys):
+        n = len(x)
+        for i, tau in enumerate(lags):
+            if abs(tau) < n:
+                acc[i] += x[tau:] @ y[:n - tau] if tau >= 0 else x[:n + tau] @ y[-tau:]
+    return acc / np.sqrt(max(sxx * syy, 1e-300))
+
+
+@dataclass
+class CorrelationTest:
+    """Correlations of the residual [-] with 95 % bands.
+
+    ``auto[tau]`` (tau >= 0) with the white band ``1.96/sqrt(N)``; ``cross[tau]`` =
+    rho(e(t), u(t - tau)) for tau = -M..M with Ljung's band ``1.96 sqrt(P/N)``,
+    ``P = sum_k rho_e(k) rho_u(k)`` (valid when both are coloured)."""
+
+    lags: np.ndarray
+    auto: np.ndarray
+    white_band: float
+    cross: np.ndarray
+    cross_band: float
+    n: int
+
+    @property
+    def whiteness_fraction(self) -> float:
+        """Fraction of lags 1..M outside the white band."""
+        k = self.lags > 0
+        return float(np.mean(np.abs(self.auto[k]) > self.white_band))
+
+    @property
+    def past_input_violations(self) -> np.ndarray:
+        """Lags tau >= 0 (current in the past) where ``|cross| > band``."""
+        k = self.lags >= 0
+        return self.lags[k][np.abs(self.cross[k]) > self.cross_band]
+
+
+def correlations(e_full: np.ndarray, u: np.ndarray, windows: Windows, max_lag: int = 50) -> CorrelationTest:
+    """Whiteness and residual-current cross-correlation (see :class:`CorrelationTest`)."""
+    es, us = _segments(windows, e_full, u)
+    n = windows.n_samples
+    re = pooled_xcorr(es, es, max_lag)
+    ru = pooled_xcorr(us, us, max_lag)
+    rc = pooled_xcorr(es, us, max_lag)
+    P = float(np.sum(re * ru))
+    lags = np.arange(-max_lag, max_lag + 1)
+    return CorrelationTest(lags, re, 1.96 / np.sqrt(n), rc, 1.96 * np.sqrt(max(P, 0) / n), n)
+
+
+@dataclass
+class Spectra:
+    """Welch estimates over windows: ``f`` [Hz], PSDs ``See`` [track^2/Hz], ``Suu``
+    [A^2/Hz], coherence ``coh`` [-] and its 95 % null threshold ``coh_band``."""
+
+    f: np.ndarray
+    See: np.ndarray
+    Suu: np.ndarray
+    Seu: np.ndarray
+    coh: np.ndarray
+    coh_band: float
+    n_segments: int
+
+    def coherent_peaks(self, fmin: float = 0.0, max_peaks: int = 5) -> list:
+        """``(freq_hz, coherence)`` of local maxima above the null threshold."""
+        c = self.coh
+        pk = [i for i in range(1, len(c) - 1) if c[i] >= c[i - 1] and c[i] >= c[i + 1]
+              and c[i] > self.coh_band and self.f[i] >= fmin]
+        pk.sort(key=lambda i: -c[i])
+        return [(float(self.f[i]), float(c[i])) for i in pk[:max_peaks]]
+
+
+def spectra(e_full: np.ndarray, u: np.ndarray, windows: Windows, fs: float, nperseg: int = 128) -> Spectra:
+    """Welch spectra and coherence of residual vs current, Hann segments inside windows."""
+    win = np.hanning(nperseg)
+    scale = 1.0 / (fs * (win ** 2).sum())
+    nf = nperseg // 2 + 1
+    See = np.zeros(nf); Suu = np.zeros(nf); Seu = np.zeros(nf, complex)
+    nseg = 0
+    for a, b in windows.bounds:
+        for s in range(a, b - nperseg + 1, nperseg // 2):
+            x = e_full[s:s + nperseg]; v = u[s:s + nperseg]
+            X = np.fft.rfft(win * (x - x.mean())); V = np.fft.rfft(win * (v - v.mean()))
+            See += (X * X.conj()).real; Suu += (V * V.conj()).real; Seu += X * V.conj()
+            nseg += 1
+    nseg = max(nseg, 1)
+    See, Suu, Seu = See * scale / nseg, Suu * scale / nseg, Seu * scale / nseg
+    coh = np.abs(Seu) ** 2 / np.maximum(See * Suu, 1e-300)
+    n_ind = max(nseg / 1.9, 2.0)   # 50 % overlap Hann: ~1.9 overlapped segments per independent one
+    band = 1.0 - 0.05 ** (1.0 / (n_ind - 1.0))
+    return Spectra(np.fft.rfftfreq(nperseg, 1.0 / fs), See, Suu, Seu, coh, float(band), nseg)
+
+
+def detect_spindle(e_full: np.ndarray, windows: Windows, fs: float, fmin: float = 30.0,
+                   fmax: float = 300.0, harmonics: int = 4, pad: int = 8, top: int = 1) -> list:
+    """Spindle-frequency candidates [Hz] from the residual: the ``top`` local maxima of the
+    harmonic-sum periodogram (residual zero outside the windows) over ``[fmin, fmax]``.
+
+    Returns ``[(f0, ratio)]``, best first; ratio = harmonic-sum power at f0 over its median
+    over the search range."""
+    x = np.zeros(len(e_full))
+    idx = windows.index()
+    x[idx] = e_full[idx]
+    nfft = int(2 ** np.ceil(np.log2(len(x) * pad)))
+    P = np.abs(np.fft.rfft(x, nfft)) ** 2
+    fgrid = np.fft.rfftfreq(nfft, 1.0 / fs)
+    cand = fgrid[(fgrid >= fmin) & (fgrid <= min(fmax, fs / 2 / harmonics))]
+    if len(cand) < 3:
+        return []
+    hs = sum(np.interp(h * cand, fgrid, P) for h in range(1, harmonics + 1))
+    med = max(float(np.median(hs)), 1e-300)
+    pk = [i for i in range(1, len(hs) - 1) if hs[i] >= hs[i - 1] and hs[i] >= hs[i + 1]]
+    pk.sort(key=lambda i: -hs[i])
+    return [(float(cand[i]), float(hs[i] / med)) for i in pk[:top]]
+
+
+def synchronous_average(e_full: np.ndarray, t: np.ndarray, windows: Windows, f0: float,
+                        nbins: int | None = None, fs: float | None = None):
+    """Residual averaged over spindle revolutions, by angle.
+
+    Returns ``(phase [0, 1), mean [track], std_error [track], repeatable_fraction)``;
+    the fraction is the variance of the binned mean (minus its estimation noise) over
+    the residual variance."""
+    idx = windows.index()
+    nbins = nbins or int(min(256, max(16, round((fs or 1.0 / np.median(np.diff(t))) / f0))))
+    ph = np.mod(t[idx] * f0, 1.0)
+    k = np.minimum((ph * nbins).astype(int), nbins - 1)
+    e = e_full[idx]
+    cnt = np.bincount(k, minlength=nbins)
+    s1 = np.bincount(k, e, nbins); s2 = np.bincount(k, e * e, nbins)
+    mean = s1 / np.maximum(cnt, 1)
+    var = np.maximum(s2 / np.maximum(cnt, 1) - mean ** 2, 0)
+    se = np.sqrt(var / np.maximum(cnt, 1))
+    frac = max(float(np.var(mean) - np.mean(se ** 2)), 0.0) / max(float(np.var(e)), 1e-300)
+    return (np.arange(nbins) + 0.5) / nbins, mean, se, frac
+
+
+def nonlinear_tests(e_full: np.ndarray, u: np.ndarray, y: np.ndarray, windows: Windows,
+                    max_lag: int = 20) -> dict:
+    """Billings-Zhu and Billings-Voon correlation tests (95 % band ``1.96/sqrt(N)``).
+
+    ``y`` is taken per window minus its mean (head motion within the window), ``'``
+    denotes removal of the mean.  Returns ``{name: (max |rho| over lags, band)}`` for
+    ``BZ_ye_e2`` = rho((y e)', (e^2)'), ``BZ_ye_u2`` = rho((y e)', (u^2)'),
+    ``BV_u2_e`` = rho((u^2)', e), ``BV_u2_e2`` = rho((u^2)', e^2), ``BV_e_eu`` = rho(e, e u)
+    (lags >= 0 for the lagged argument)."""
+    segs = []
+    for a, b in windows.bounds:
+        e, v, w = e_full[a:b], u[a:b], y[a:b] - y[a:b].mean()
+        segs.append((e, v, w))
+    n = windows.n_samples
+    band = 1.96 / np.sqrt(n)
+
+    def test(fx, fy, two_sided=False):
+        xs = [fx(*s) for s in segs]; ys = [fy(*s) for s in segs]
+        mx = np.mean(np.concatenate(xs)); my = np.mean(np.concatenate(ys))
+        r = pooled_xcorr([x - mx for x in xs], [z - my for z in ys], max_lag)
+        r = r if two_sided else r[max_lag:]
+        return float(np.max(np.abs(r))), band
+
+    return {
+        "BZ_ye_e2": test(lambda e, v, w: w * e, lambda e, v, w: e * e),
+        "BZ_ye_u2": test(lambda e, v, w: w * e, lambda e, v, w: v * v),
+        "BV_u2_e": test(lambda e, v, w: e, lambda e, v, w: v * v),
+        "BV_u2_e2": test(lambda e, v, w: e * e, lambda e, v, w: v * v),
+        "BV_e_eu": test(lambda e, v, w: e, lambda e, v, w: e * v),
+    }

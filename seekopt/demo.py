@@ -1,0 +1,350 @@
+"""The whole pipeline on one seek log (``seekopt demo``).
+
+Stages, each timed and reported; a failing stage stops the demo with a one-line
+:class:`DemoError` (the traceback goes to ``<out>/demo-error.log``):
+
+1. **log** -- read the log (default: the bundled synthetic ``seekopt/data/sample_log.npz``,
+   120 seeks of ``seekopt synth`` with its defaults; its truth plant is bundled beside it);
+2. **identify** -- :func:`identification.identify.identify` (robust method);
+3. **close the loop** -- :mod:`identification.closing` (residual analysis, model augmentation);
+   skipped, and said so, where that module is not available;
+4. **design & bench** -- optimal profiles for a set of seek lengths at the log's track
+   density, benchmarked against sine and windowed sine (:mod:`seekopt.sweep`, one TPI), and,
+   when the truth plant is known, the same profiles run on the truth;
+5. **sweep** -- a small TPI x length sweep (local process pool) that extends the bench folder;
+6. **export** -- C, CSV and JSON firmware tables (:mod:`seekopt.export`);
+7. **report** -- ``report.md`` (+ ``report.html``) with figures, and a summary table printed.
+
+Everything is written under the output folder (default ``./seekopt-out``).
+"""
+from __future__ import annotations
+
+import json
+import time
+import traceback
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["DemoError", "DemoConfig", "run_demo", "identify_plant", "close_loop", "sample_log_path"]
+
+
+class DemoError(ValueError):
+    """A demo stage failed (one-line message naming the stage)."""
+
+
+@dataclass
+class DemoConfig:
+    """What the demo does.  ``quick`` shrinks the design set and the sweep (for tests)."""
+
+    log: str | None = None
+    outdir: str = "seekopt-out"
+    quick: bool = False
+    imax: float = 0.3
+    settle: float = 0.1
+    lengths: tuple = (1, 10, 100, 1000, 10000)
+    sweep_tpi_factors: tuple = (1.0, 2.0, 5.0)
+    sweep_lengths: tuple = (10, 100, 1000, 10000)
+    workers: int = 2
+    html: bool = True
+    designer: str = "ocp"
+
+    def __post_init__(self):
+        if self.quick:
+            self.lengths, self.sweep_lengths, self.sweep_tpi_factors = (10, 1000), (10, 1000), (1.0, 3.0)
+
+
+def sample_log_path() -> Path:
+    """The bundled sample log."""
+    return Path(str(resources.files("seekopt").joinpath("data/sample_log.npz")))
+
+
+def _sample_truth():
+    from identification.plant import ModalPlant
+    return ModalPlant.load(str(resources.files("seekopt").joinpath("data/sample_log.truth.json")))
+
+
+# ------------------------------------------------------------------ stage adapters
+def identify_plant(log):
+    """``identify(log).plant`` with the log's track pitch and sample rate filled in.
+
+    Returns ``(plant, notes)``; ``notes`` is a dict of what identification reported.
+    """
+    from identification.identify import identify
+    res = identify(log)
+    plant = res.plant
+    if plant.track_pitch_nm is None and log.track_pitch_nm is not None:
+        plant = plant.copy(track_pitch_nm=log.track_pitch_nm)
+    if plant.sample_rate_hz is None:
+        plant = plant.copy(sample_rate_hz=log.sample_rate_hz)
+    notes = {k: getattr(res, k) for k in ("method", "fit_percent", "fit_percent_rigid", "residual_rms")
+             if hasattr(res, k)}
+    return plant, notes
+
+
+def close_loop(log, plant):
+    """Run :mod:`identification.closing` on ``(log, plant)``.
+
+    Returns ``(plant, summary)``: the (possibly augmented) plant and a one-paragraph summary,
+    or ``(plant, None)`` when the module is not available (the stage is then reported skipped).
+    """
+    try:
+        from identification import closing
+    except ImportError:
+        return plant, None
+    fn = getattr(closing, "close_loop", None)
+    if fn is None:
+        return plant, None
+    res = fn(log, plant)
+    new = getattr(res, "plant", None) or plant
+    summary = getattr(res, "summary", None)
+    return new, (summary() if callable(summary) else str(summary or "loop closed"))
+
+
+# ------------------------------------------------------------------ stages
+@dataclass
+class _Run:
+    out: Path
+    stages: list = field(default_factory=list)   # (name, status, seconds, note)
+    n: int = 7
+
+    @contextmanager
+    def stage(self, name: str):
+        i = len(self.stages) + 1
+        print(f"[{i}/{self.n}] {name} ...", flush=True)
+        t0 = time.perf_counter()
+        rec = [name, "ok", 0.0, ""]
+        self.stages.append(rec)
+        try:
+            yield rec
+        except DemoError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - every stage failure becomes one clear line
+            self.out.mkdir(parents=True, exist_ok=True)
+            log = self.out / "demo-error.log"
+            log.write_text(traceback.format_exc())
+            msg = " ".join(str(exc).split())[:200]
+            raise DemoError(f"stage {i} ({name}) failed: {type(exc).__name__}: {msg} "
+                            f"(traceback in {log})") from None
+        rec[2] = time.perf_counter() - t0
+        print(f"[{i}/{self.n}] {name}: {rec[1]} in {rec[2]:.1f} s" + (f" - {rec[3]}" if rec[3] else ""),
+              flush=True)
+
+
+def _bench_on(plant, controller, profiles, settle, k0):
+    """Evaluate each ``(tracks, kind, profile)`` on ``plant``; rows as dicts."""
+    from .sweep import evaluate
+    rows = []
+    for tracks, kind, prof in profiles:
+        rows.append(dict(tracks=tracks, kind=kind, **evaluate(plant, controller, prof, settle, None, k0)))
+    return rows
+
+
+def run_demo(cfg: DemoConfig) -> dict:
+    """Run the pipeline; returns a dict with the report path, tables and stage timings."""
+    import pandas as pd
+    from identification.logs import read_log
+    from identification.plant import TRACK_PITCH_PER_TPI_NM
+    from . import report
+    from .controller import Controller
+    from .export import load_tables, write_tables
+    from .profiles import Profile
+    from .sweep import SweepConfig, baseline_profile, cell_key, load_cells, run_sweep
+    out = Path(cfg.outdir)
+    out.mkdir(parents=True, exist_ok=True)
+    figs = out / "figures"
+    run = _Run(out)
+    t_start = time.perf_counter()
+    controller = Controller.nss()
+    truth = None
+
+    with run.stage("read the seek log") as rec:
+        path = Path(cfg.log) if cfg.log else sample_log_path()
+        log = read_log(path)
+        if cfg.log is None:
+            truth = _sample_truth()
+        rec[3] = f"{path.name}: {log.n} samples at {log.sample_rate_hz:g} Hz"
+        if log.track_pitch_nm is None:
+            raise DemoError(f"{path}: the log has no track_pitch_nm; the sweep needs the physical gain")
+
+    with run.stage("identify the plant") as rec:
+        plant, id_notes = identify_plant(log)
+        plant.to_json(out / "plant.json")
+        rec[3] = f"k0 = {plant.k0:.4g} track/(A s^2), {len(plant.modes)} modes"
+
+    with run.stage("close the loop") as rec:
+        plant2, loop_summary = close_loop(log, plant)
+        if loop_summary is None:
+            rec[1], rec[3] = "skipped", "identification.closing not available"
+        else:
+            plant = plant2
+            plant.to_json(out / "plant.json")
+            rec[3] = loop_summary.splitlines()[0][:100]
+
+    native = TRACK_PITCH_PER_TPI_NM / plant.track_pitch_nm
+    sweep_dir = out / "sweep"
+    with run.stage("design and bench against sine / windowed sine") as rec:
+        bcfg = SweepConfig(plant, controller, [native], list(cfg.lengths), cfg.imax, cfg.settle,
+                           designer=cfg.designer)
+        bs = run_sweep(bcfg, sweep_dir, engine="process", workers=cfg.workers, figures=False)
+        cells = load_cells(sweep_dir)
+        bench = pd.read_csv(bs.table)
+        bench = bench[bench["tpi"] == bcfg.tpis[0]]
+        truth_rows = []
+        if truth is not None:
+            profs = []
+            for L in bcfg.tracks:
+                c = cells[cell_key(bcfg.tpis[0], L)]
+                if c.get("optimal_profile"):
+                    profs.append((L, "optimal", Profile.from_dict(c["optimal_profile"])))
+                for kind in ("sine", "windowed_sine"):
+                    profs.append((L, kind, baseline_profile(plant, controller.sample_rate_hz, kind, L,
+                                                            cfg.imax, cfg.settle)))
+            truth_rows = _bench_on(truth, controller, profs, cfg.settle, plant.k0)
+        rec[3] = f"{len(bcfg.tracks)} lengths, {len(bs.failed_cells)} failed cells"
+
+    with run.stage("small TPI sweep") as rec:
+        tpis = [round(native * f) for f in cfg.sweep_tpi_factors]
+        scfg = SweepConfig(plant, controller, tpis, sorted(set(cfg.sweep_lengths) | set(cfg.lengths)),
+                           cfg.imax, cfg.settle, designer=cfg.designer)
+        ss = run_sweep(scfg, sweep_dir, engine="process", workers=cfg.workers, figures=True,
+                       progress=True)
+        sweep_df = pd.read_csv(ss.table)
+        rec[3] = (f"{ss.total} cells ({ss.skipped} reused from the bench), {ss.computed} computed "
+                  f"at {ss.cells_per_s:.2f} cells/s")
+
+    with run.stage("export firmware tables") as rec:
+        ts = load_tables(sweep_dir)
+        paths = []
+        for fmt in ("c", "csv", "json"):
+            paths += write_tables(ts, fmt, out / "export")
+        rec[3] = f"{len(ts.tables)} tables, {ts.meta['ref_format']}"
+
+    with run.stage("write the report") as rec:
+        report_path = _write_report(cfg, out, figs, log, plant, truth, id_notes, loop_summary, bench,
+                                    truth_rows, sweep_df, ss, ts, paths, run, controller)
+        rec[3] = str(report_path)
+
+    summary = _summary_table(bench, truth_rows)
+    print()
+    print(summary.to_string(index=False))
+    print(f"\nreport: {report_path}  (total {time.perf_counter() - t_start:.0f} s)")
+    return {"report": report_path, "bench": bench, "truth": truth_rows, "sweep": sweep_df,
+            "stages": run.stages, "summary": summary}
+
+
+# ------------------------------------------------------------------ report
+def _summary_table(bench, truth_rows):
+    import pandas as pd
+    from .report import seek_settle_s
+    b = bench.copy()
+    b["seek_settle_ms"] = 1e3 * seek_settle_s(b)
+    t = b.pivot_table(index="tracks", columns="kind", values="seek_settle_ms", aggfunc="first")
+    t.columns = [f"{c} [ms]" for c in t.columns]
+    if truth_rows:
+        tr = pd.DataFrame(truth_rows)
+        tr["status"] = "ok"
+        tr["seek_settle_ms"] = 1e3 * seek_settle_s(tr)
+        tt = tr.pivot_table(index="tracks", columns="kind", values="seek_settle_ms", aggfunc="first")
+        for c in tt.columns:
+            t[f"{c} on truth [ms]"] = tt[c]
+    return t.reset_index().round(3)
+
+
+def _plot_frf(plant, truth, path):
+    plt = __import__("seekopt.report", fromlist=["_plt"])._plt()
+    f = np.logspace(1.5, np.log10(13000), 600)
+    fig, ax = plt.subplots(figsize=(7, 3.6))
+    ax.loglog(f, np.abs(plant.frf(f)), "C3", label="identified")
+    if truth is not None:
+        ax.loglog(f, np.abs(truth.frf(f)), "k--", lw=0.9, label="truth (synthetic drive)")
+    ax.set_xlabel("frequency [Hz]")
+    ax.set_ylabel("|P(j2πf)| [track/A]")
+    ax.set_title("Plant frequency response")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    return __import__("seekopt.report", fromlist=["_save"])._save(fig, path)
+
+
+def _plot_traces(plant, controller, cells, tpi, tracks, imax, settle, path):
+    """PES and current vs time for the three profiles of one seek (the one simulator)."""
+    from . import report
+    from .profiles import Profile
+    from .simulate import simulate_2dof
+    from .sweep import baseline_profile, cell_key
+    plt = report._plt()
+    c = cells.get(cell_key(tpi, tracks))
+    profs = []
+    if c and c.get("optimal_profile"):
+        profs.append(("optimal", Profile.from_dict(c["optimal_profile"])))
+    for kind in ("sine", "windowed_sine"):
+        profs.append((kind, baseline_profile(plant, controller.sample_rate_hz, kind, tracks, imax, settle)))
+    fs = controller.sample_rate_hz
+    n = max(p.n for _, p in profs) + int(0.004 * fs)
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(7, 5.5), sharex=True)
+    for kind, p in profs:
+        u, r = p.padded(n)
+        res = simulate_2dof(plant, controller, u, r, position0=0.0)
+        col, ls, _ = report._KIND_STYLE[kind]
+        t = 1e3 * np.arange(n) / fs
+        a1.plot(t, res.true_position_track - tracks, color=col, ls=ls, label=report.KIND_LABELS[kind])
+        a2.plot(t, res.current_a, color=col, ls=ls)
+    for s in (settle, -settle):
+        a1.axhline(s, color="0.5", lw=0.7)
+    a1.set_ylim(-20 * settle, 20 * settle)
+    a1.set_ylabel("position - target [track]")
+    a1.set_title(f"{tracks:g}-track seek on the identified plant (grey: ±{settle:g} track band)", fontsize=9)
+    a1.legend(fontsize=8)
+    a2.set_ylabel("current [A]")
+    a2.set_xlabel("time from seek start [ms]")
+    for a in (a1, a2):
+        a.grid(True, alpha=0.3)
+    fig.tight_layout()
+    return report._save(fig, path)
+
+
+def _write_report(cfg, out, figs, log, plant, truth, id_notes, loop_summary, bench, truth_rows,
+                  sweep_df, ss, ts, export_paths, run, controller):
+    from . import __version__, report
+    from .sweep import load_cells
+    sections = []
+    rows = [{"stage": s[0], "status": s[1], "time_s": s[2], "note": s[3]} for s in run.stages]
+    import pandas as pd
+    sections.append(("Pipeline", f"seekopt {__version__}; log `{cfg.log or 'bundled sample_log.npz'}`, "
+                     f"{log.n} samples at {log.sample_rate_hz:g} Hz; controller `{controller.name}`; "
+                     f"Imax {cfg.imax:g} A; settle band ±{cfg.settle:g} track.\n\n"
+                     + report.markdown_table(pd.DataFrame(rows), fmt=".1f"), []))
+    mt = pd.DataFrame([{"freq_hz": m.freq_hz, "zeta": m.zeta, "gain": m.gain} for m in plant.modes])
+    text = (f"k0 = {plant.k0:.5g} track/(A s²) (physical gain {plant.physical_gain:.4g} m/(A s²)), "
+            f"bias {plant.bias_a:.3g} A, delay {1e6 * plant.delay_s:.2f} µs. "
+            + ", ".join(f"{k}: {v:.4g}" if isinstance(v, float) else f"{k}: {v}" for k, v in id_notes.items())
+            + "\n\n" + (report.markdown_table(mt, fmt=".4g") if len(mt) else "(no modes)\n"))
+    if truth is not None:
+        tt = pd.DataFrame([{"freq_hz": m.freq_hz, "zeta": m.zeta, "gain": m.gain} for m in truth.modes])
+        text += f"\nTruth of the synthetic drive: k0 = {truth.k0:.5g}, bias {truth.bias_a:.3g} A.\n\n" + \
+            report.markdown_table(tt, fmt=".4g")
+    sections.append(("Identified plant", text, [_plot_frf(plant, truth, figs / "plant_frf.png")]))
+    sections.append(("Closing the loop", loop_summary or "Skipped: `identification.closing` is not "
+                     "available in this installation.", []))
+    summary = _summary_table(bench, truth_rows)
+    cells = load_cells(out / "sweep")
+    L = sorted(cfg.lengths)[len(cfg.lengths) // 2]
+    trace = _plot_traces(plant, controller, cells, float(bench["tpi"].iloc[0]), L,
+                         cfg.imax, cfg.settle, figs / f"seek_{L:g}_tracks.png")
+    sections.append(("Bench: optimal vs sine and windowed sine",
+                     "Seek-settle time (seek start until the error stays within the band) on the "
+                     "identified plant" + (" and on the truth plant" if truth_rows else "") + ".\n\n"
+                     + report.markdown_table(summary, fmt=".3g"), [trace]))
+    sv = report.savings_table(sweep_df)
+    sections.append(("TPI sweep", "The identified plant re-expressed per TPI (physical gain kept, "
+                     "controller gain scaled with the track pitch, settle band in tracks). "
+                     f"{ss.total} cells; results in `sweep/results.csv`.\n\n"
+                     + report.markdown_table(sv, fmt=".3g"), ss.figures))
+    sections.append(("Firmware export", f"{len(ts.tables)} tables; feedforward {ts.meta['ff_format']}; "
+                     f"reference {ts.meta['ref_format']}. Files: "
+                     + ", ".join(f"`{Path(p).relative_to(out)}`" for p in export_paths), []))
+    return report.write_report(out, "seekopt demo report", sections, html_too=cfg.html)

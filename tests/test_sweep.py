@@ -1,0 +1,242 @@
+"""Tests for seekopt.sweep: grid parsing, engines (serial, process pool, Dask LocalCluster),
+determinism, failing cells, kill-and-resume, CLI errors.
+
+The machinery is tested with the ``baseline`` designer (shortest bang-bang within Imax) so
+the tests do not depend on the optimiser's speed; the optimiser-backed sweep is under
+``@pytest.mark.slow``.
+"""
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from seekopt.controller import Controller
+from seekopt.presets import default_truth_plant
+from seekopt.sweep import (KINDS, TIMING_COLUMNS, SweepConfig, SweepError, cell_key, compute_cell,
+                           load_cells, parse_tpi, parse_tracks, run_sweep)
+
+ROOT = Path(__file__).resolve().parents[1]
+TPIS, TRACKS = [100e3, 200e3], [1, 10, 100]
+
+
+def config(**kw):
+    args = dict(plant=default_truth_plant(), controller=Controller.nss(), tpis=TPIS, tracks=TRACKS,
+                imax=0.3, designer="baseline")
+    args.update(kw)
+    return SweepConfig(**args)
+
+
+def numbers(outdir):
+    """The sweep table without the timing columns (which depend on the machine)."""
+    df = pd.read_csv(Path(outdir) / "results.csv")
+    return df.drop(columns=list(TIMING_COLUMNS))
+
+
+@pytest.fixture(scope="module")
+def serial(tmp_path_factory):
+    out = tmp_path_factory.mktemp("serial")
+    s = run_sweep(config(), out, engine="serial", progress=False, figures=False)
+    return out, s
+
+
+class FailingDesigner:
+    """Test designer: the baseline designer, but 10-track seeks fail."""
+
+    def __init__(self, plant, controller, imax, settle=0.1):
+        from seekopt.sweep import BaselineDesigner
+        self.inner = BaselineDesigner(plant, controller, imax, settle)
+
+    def design(self, tracks):
+        if tracks == 10:
+            raise RuntimeError("solver exploded\nsecond line")
+        return self.inner.design(tracks)
+
+
+BUILT = []
+
+
+class CountingDesigner(FailingDesigner):
+    def __init__(self, *a, **k):
+        BUILT.append(a[0].k0)
+        super().__init__(*a, **k)
+
+    def design(self, tracks):
+        return self.inner.design(tracks)
+
+
+# ------------------------------------------------------------------ parsing / config
+def test_parse_grid():
+    assert parse_tpi("200k:1000k:9") == [200e3 + 1e5 * i for i in range(9)]
+    assert parse_tpi("500k") == [500e3] and parse_tpi("1m,200k") == [200e3, 1e6]
+    assert parse_tracks("10,1,2,5,1") == [1, 2, 5, 10]
+    for bad in ("200k:1000k", "a:b:3", "200k:1000k:0", "-5"):
+        with pytest.raises(SweepError):
+            parse_tpi(bad)
+    with pytest.raises(SweepError):
+        parse_tracks("1,x")
+    with pytest.raises(SweepError):
+        config(plant=default_truth_plant().copy(track_pitch_nm=None))
+
+
+def test_cell_rows_and_tpi_scaling():
+    """k0 scales with TPI (physical gain kept), the controller with it; one row per kind."""
+    cfg = config()
+    a = compute_cell({"config": cfg.to_dict(), "tpi": 100e3, "tracks": 10})
+    b = compute_cell({"config": cfg.to_dict(), "tpi": 200e3, "tracks": 10})
+    assert [r["kind"] for r in a["rows"]] == list(KINDS)
+    ra, rb = a["rows"][1], b["rows"][1]
+    assert rb["k0_track"] / ra["k0_track"] == pytest.approx(2.0, rel=1e-12)
+    phys = [r["k0_track"] * r["track_pitch_nm"] * 1e-9 for r in (ra, rb)]
+    assert phys[0] == pytest.approx(default_truth_plant().physical_gain, rel=1e-12) == phys[1]
+    assert rb["controller_gain"] / ra["controller_gain"] == pytest.approx(0.5, rel=1e-12)
+    assert all(r["status"] == "ok" for r in a["rows"] + b["rows"])
+    assert a["optimal_profile"]["tracks"] == 10.0
+
+
+def test_designer_built_once_per_tpi():
+    BUILT.clear()
+    cfg = config(designer="test_sweep:CountingDesigner", tpis=[300e3])
+    for k in (1, 10, 100):
+        compute_cell({"config": cfg.to_dict(), "tpi": 300e3, "tracks": k})
+    assert len(BUILT) == 1
+
+
+# ------------------------------------------------------------------ results, determinism, engines
+def test_serial_sweep_writes_table_cells_profiles(serial):
+    out, s = serial
+    assert s.total == 6 and s.computed == 6 and s.skipped == 0 and not s.engine_errors
+    df = pd.read_csv(out / "results.csv")
+    assert len(df) == 6 * len(KINDS)
+    assert set(df["kind"]) == set(KINDS) and (df["status"] == "ok").all()
+    assert {"seek_time_s", "settle_time_s", "peak_pes_after_track", "ratio_tbb", "settled",
+            "design_status", "error"} <= set(df.columns)
+    assert sorted(load_cells(out)) == sorted(cell_key(t, k) for t in TPIS for k in TRACKS)
+    assert len(list((out / "profiles").glob("optimal_*.csv"))) == 6
+    journal = (out / "journal.log").read_text().splitlines()
+    assert sum(line.startswith("computed ") for line in journal) == 6
+
+
+def test_rerun_is_deterministic_and_resumes(serial, tmp_path):
+    out, _ = serial
+    s = run_sweep(config(), out, engine="serial", progress=False, figures=False)
+    assert s.computed == 0 and s.skipped == 6
+    run_sweep(config(tracks=list(reversed(TRACKS))), tmp_path, engine="serial", progress=False,
+              figures=False)
+    pd.testing.assert_frame_equal(numbers(out), numbers(tmp_path), check_exact=True)
+
+
+def test_process_pool_equals_serial(serial, tmp_path):
+    out, _ = serial
+    s = run_sweep(config(), tmp_path, engine="process", workers=2, progress=False, figures=True)
+    assert s.engine == "process" and s.computed == 6
+    pd.testing.assert_frame_equal(numbers(out), numbers(tmp_path), check_exact=True)
+    assert {p.name for p in s.figures} >= {"seek_settle_vs_length.png", "heatmap_saving.png",
+                                           "gain_over_baselines.png"}
+
+
+def test_dask_local_cluster_equals_serial(serial, tmp_path):
+    from dask.distributed import Client, LocalCluster
+    out, _ = serial
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                      dashboard_address=None) as cluster, Client(cluster) as client:
+        assert cluster.scheduler_address.startswith("tcp://127.0.0.1:")
+        s = run_sweep(config(), tmp_path, client=client, progress=False, figures=False)
+        pids = {c["pid"] for c in load_cells(tmp_path).values()}
+    assert s.computed == 6 and not s.engine_errors
+    assert os.getpid() not in pids
+    pd.testing.assert_frame_equal(numbers(out), numbers(tmp_path), check_exact=True)
+
+
+# ------------------------------------------------------------------ failures
+def test_failing_cell_recorded_and_sweep_goes_on(tmp_path):
+    cfg = config(designer="test_sweep:FailingDesigner", tpis=[100e3])
+    s = run_sweep(cfg, tmp_path, engine="serial", progress=False, figures=True)
+    assert s.failed_cells == [cell_key(100e3, 10)] and s.computed == 3
+    df = pd.read_csv(tmp_path / "results.csv").fillna("")
+    bad = df[(df["tracks"] == 10) & (df["kind"] == "optimal")].iloc[0]
+    assert bad["status"] == "error" and bad["error"] == "RuntimeError: solver exploded second line"
+    assert (df[df["kind"] != "optimal"]["status"] == "ok").all()
+    assert (df[(df["tracks"] != 10)]["status"] == "ok").all()
+    again = run_sweep(cfg, tmp_path, engine="serial", progress=False, figures=False)
+    assert again.computed == 0  # a recorded failure is a result, not redone
+
+
+def test_other_configuration_refused_grid_change_reuses(serial, tmp_path):
+    out, _ = serial
+    with pytest.raises(SweepError, match="another plant/controller"):
+        run_sweep(config(imax=0.2), out, engine="serial", progress=False, figures=False)
+    s = run_sweep(config(tracks=TRACKS + [1000]), out, engine="serial", progress=False, figures=False)
+    assert s.skipped == 6 and s.computed == 2 and s.total == 8
+
+
+def test_cli_errors_are_one_line_exit_2(tmp_path, capsys):
+    from seekopt.cli import main
+    plant = tmp_path / "p.json"
+    default_truth_plant().to_json(plant)
+    args = ["sweep", "--plant", str(plant), "--tracks", "1,10", "--imax", "0.3", "-o", str(tmp_path / "o")]
+    assert main(args + ["--tpi", "200k:1000k"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "start:stop:count" in err
+    assert main(["sweep", "--plant", str(tmp_path / "missing.json"), "--tpi", "200k", "--tracks", "1",
+                 "--imax", "0.3", "-o", str(tmp_path / "o")]) == 2
+    assert "missing.json" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------ kill and resume
+KILL_SCRIPT = textwrap.dedent("""
+    import sys
+    from seekopt.controller import Controller
+    from seekopt.presets import default_truth_plant
+    from seekopt.sweep import SweepConfig, run_sweep
+    cfg = SweepConfig(default_truth_plant(), Controller.nss(), [100e3, 150e3, 200e3, 300e3],
+                      [1, 3, 10, 30, 100], 0.3, designer="baseline")
+    run_sweep(cfg, sys.argv[1], engine="process", workers=2, progress=False, figures=False)
+""")
+
+
+def test_killed_sweep_resumes_without_loss_or_recompute(tmp_path):
+    out = tmp_path / "res"
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
+    proc = subprocess.Popen([sys.executable, "-c", KILL_SCRIPT, str(out)], env=env,
+                            start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        deadline = time.time() + 120
+        while time.time() < deadline and len(list((out / "cells").glob("*.json"))) < 4:
+            assert proc.poll() is None, proc.stderr.read().decode()[-2000:]
+            time.sleep(0.05)
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)  # the sweep and its pool workers, mid-way
+        proc.wait()
+    before = {k: c["computation_id"] for k, c in load_cells(out).items()}
+    assert 4 <= len(before) < 20, "the kill did not land mid-way"
+    cfg = SweepConfig(default_truth_plant(), Controller.nss(), [100e3, 150e3, 200e3, 300e3],
+                      [1, 3, 10, 30, 100], 0.3, designer="baseline")
+    s = run_sweep(cfg, out, engine="serial", progress=False, figures=False)
+    after = load_cells(out)
+    assert s.total == 20 and s.skipped == len(before) and s.computed == 20 - len(before)
+    assert len(after) == 20                                              # no cell lost
+    assert all(after[k]["computation_id"] == i for k, i in before.items())  # none recomputed
+    computed = [line.split()[1] for line in (out / "journal.log").read_text().splitlines()
+                if line.startswith("computed ")]
+    assert len(computed) == len(set(computed))                        # each computation once
+    assert set(computed) >= set(after) - set(before)
+    assert len(pd.read_csv(out / "results.csv")) == 20 * len(KINDS)
+
+
+# ------------------------------------------------------------------ with the optimiser
+@pytest.mark.slow
+def test_optimal_sweep_deterministic_across_engines(tmp_path):
+    pytest.importorskip("seekopt.ocp")
+    cfg = config(designer="ocp", tpis=[200e3, 600e3], tracks=[10, 200])
+    run_sweep(cfg, tmp_path / "a", engine="serial", progress=False, figures=False)
+    run_sweep(cfg, tmp_path / "b", engine="process", workers=2, progress=False, figures=False)
+    a, b = numbers(tmp_path / "a"), numbers(tmp_path / "b")
+    pd.testing.assert_frame_equal(a, b, check_exact=True)
+    assert (a[a["kind"] == "optimal"]["status"] == "ok").all()
