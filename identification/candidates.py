@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import lsq_linear, minimize, minimize_scalar
+from scipy.signal import lfilter
 
 from .effects import (AmplifierLag, CurrentSaturation, ExtraMode, Friction, InputDelay,
                       PeriodicDisturbance, PivotSpringDamper, PositionBias, TorqueConstantVariation)
@@ -30,16 +31,21 @@ from .plant import ModalPlant, Mode
 from .residual import (LinearModel, Windows, detect_spindle, eval_forces, eval_inputs, eval_outputs,
                        velocity_estimate)
 
-__all__ = ["Data", "Engine", "Fit", "CANDIDATES", "fit_candidate"]
+__all__ = ["Data", "Engine", "Fit", "CANDIDATES", "fit_candidate", "noise_model", "refit_base",
+           "sse_of"]
 
 
 # ------------------------------------------------------------------------------ data
 @dataclass
 class Data:
-    """A log and the windows of it used for fitting or validation."""
+    """A log, the windows of it used for fitting or validation, and the noise model.
+
+    ``ar`` holds the coefficients ``[1, a1, ..., ap]`` of the prewhitening filter
+    ``A(q)`` (:func:`noise_model`); None means plain output error."""
 
     log: SeekLog
     windows: Windows
+    ar: np.ndarray | None = None
     v: np.ndarray = None         # velocity estimate [track/s]
     v_scale: float = 0.0         # its noise level [track/s]
     _q: dict = field(default_factory=dict, repr=False)
@@ -51,15 +57,51 @@ class Data:
             vs = self.v[tail] if tail.sum() > 50 else self.v
             self.v_scale = float(1.4826 * np.median(np.abs(vs - np.median(vs)))) or 1.0
 
+    def with_noise(self, ar) -> "Data":
+        """The same data with another prewhitening filter."""
+        return Data(self.log, self.windows, None if ar is None else np.asarray(ar, float),
+                    self.v, self.v_scale)
+
     @property
     def n(self) -> int:
         return self.windows.n_samples
 
-    def q(self, basis_fn, key) -> list:
-        """Orthonormal anchor bases per window (cached per rigid-block ``key``)."""
-        if key not in self._q:
-            self._q[key] = [np.linalg.qr(basis_fn(b - a))[0] for a, b in self.windows.bounds]
-        return self._q[key]
+    def skip(self, whiten: bool) -> int:
+        return len(self.ar) - 1 if whiten and self.ar is not None else 0
+
+    def rows(self, whiten: bool) -> np.ndarray:
+        """Log indices of the samples that enter the criterion."""
+        p = self.skip(whiten)
+        return np.concatenate([np.arange(a + p, b) for a, b in self.windows.bounds])
+
+    def q(self, basis_fn, key, whiten: bool) -> list:
+        """Orthonormal (whitened) anchor bases per window, cached per rigid block."""
+        k = (key, whiten)
+        if k not in self._q:
+            p = self.skip(whiten)
+            out = []
+            for a, b in self.windows.bounds:
+                B = basis_fn(b - a)
+                if p:
+                    B = lfilter(self.ar, [1.0], B, axis=0)[p:]
+                U, sv, _ = np.linalg.svd(B, full_matrices=False)
+                out.append(U[:, sv > 1e-9 * max(sv.max(), 1e-300)])
+            self._q[k] = out
+        return self._q[k]
+
+
+def noise_model(e_segments: list, order: int = 12) -> np.ndarray:
+    """AR prewhitening filter ``[1, a1..ap]`` fitted by pooled least squares to residual
+    segments (one per window) [-]."""
+    rows, rhs = [], []
+    for e in e_segments:
+        if len(e) <= order + 2:
+            continue
+        X = np.column_stack([e[order - i - 1:len(e) - i - 1] for i in range(order)])
+        rows.append(X); rhs.append(e[order:])
+    X, r = np.vstack(rows), np.concatenate(rhs)
+    a = np.linalg.lstsq(X, r, rcond=None)[0]
+    return np.r_[1.0, -a]
 
 
 def _rigid_key(plant: ModalPlant) -> tuple:
@@ -76,7 +118,7 @@ class Engine:
         log = data.log
         self.cmd = eval_inputs(plant.effects, log.current_a, log.position_track)
         self.force = eval_forces(plant, log.position_track, data.v, data.v_scale)
-        self.Q = data.q(self.lm.free_basis, _rigid_key(plant))
+        self.key = _rigid_key(plant)
         self.y_lin = self.lm.response(self.cmd, self.force, data.windows)
         self.y_out = eval_outputs(plant.effects, log.time_s)
 
@@ -87,11 +129,17 @@ class Engine:
         r, f = self.lm.response(c, force, self.d.windows, split=True)
         return r if rigid_only else r + f
 
-    def project(self, *cols) -> np.ndarray:
-        """Columns (full-length) -> window samples with anchors projected out, ``(N, k)``."""
+    def project(self, *cols, whiten: bool = True) -> np.ndarray:
+        """Full-length columns -> criterion samples, prewhitened (if the data has a noise
+        model and ``whiten``) with the anchors projected out, ``(N, k)``."""
+        X = np.column_stack(cols)
+        d = self.d
+        p = d.skip(whiten)
         out = []
-        for (a, b), Q in zip(self.d.windows.bounds, self.Q):
-            S = np.column_stack([c[a:b] for c in cols])
+        for (a, b), Q in zip(d.windows.bounds, d.q(self.lm.free_basis, self.key, whiten)):
+            S = X[a:b]
+            if p:
+                S = lfilter(d.ar, [1.0], S, axis=0)[p:]
             out.append(S - Q @ (Q.T @ S))
         return np.vstack(out)
 
@@ -103,9 +151,9 @@ class Engine:
         """Regressors of the base re-fit: relative k0 change, bias change [A]."""
         return [self.y_lin, self.resp(force=np.ones(self.d.log.n))]
 
-    def residual(self) -> np.ndarray:
-        """Projected residual on the window samples [track]."""
-        return self.project(self.target())[:, 0]
+    def residual(self, whiten: bool = False) -> np.ndarray:
+        """Projected residual on the criterion samples [track]."""
+        return self.project(self.target(), whiten=whiten)[:, 0]
 
 
 def lstsq(r: np.ndarray, Z: np.ndarray, bounds=None):
@@ -139,9 +187,10 @@ def refit_base(plant: ModalPlant, data: Data, iters: int = 2) -> ModalPlant:
     return plant
 
 
-def sse_of(plant: ModalPlant, data: Data) -> float:
-    e = Engine(plant, data).residual()
-    return float(e @ e)
+def sse_of(plant: ModalPlant, data: Data, whiten: bool = True) -> tuple[float, int]:
+    """Sum of squared (prewhitened) residuals and their number."""
+    e = Engine(plant, data).residual(whiten)
+    return float(e @ e), len(e)
 
 
 # ------------------------------------------------------------------------------ fits
@@ -296,7 +345,7 @@ def _mode_column(plant, eng, f, z):
     """Response [track] of a unit-gain mode at ``f`` Hz, damping ``z``, to the model's inputs."""
     keep = [e for e in plant.effects if isinstance(e, (InputDelay, AmplifierLag))]
     mini = ModalPlant(k0=plant.k0, modes=[Mode(f, z, 1.0)], delay_s=plant.delay_s, effects=keep)
-    return LinearModel(mini, eng.d.log.dt).response(eng.cmd, eng.force, eng.d.windows, split=True)[1]
+    return LinearModel(mini, eng.d.log.dt).response(eng.cmd, eng.force, eng.d.windows, with_rigid=False)
 
 
 def _near_existing(plant, f):
@@ -343,27 +392,25 @@ def _harmonic_cols(t, f0, hs):
     return cols
 
 
-def _select_harmonics(eng, P0, t, f0, hmax):
-    """Forward selection of harmonics by BIC; returns (harmonics, theta, sse)."""
+def _select_harmonics(eng, P0, t, f0, hmax, chi2_min: float = 13.8):
+    """Fit harmonics 1..hmax jointly, keep those whose (cos, sin) pair is significant
+    (Wald chi^2 with 2 dof > ``chi2_min``, 13.8 = p 0.001); returns (harmonics, bic)."""
     n = P0.shape[0]
-    chosen, cols = [], []
-    sse = lstsq(P0[:, 0], P0[:, 1:])[1]
-    bic = n * math.log(sse / n)
-    cand = {h: eng.project(*_harmonic_cols(t, f0, [h])) for h in range(1, hmax + 1)}
-    while True:
-        trial = {}
-        for h, c in cand.items():
-            if h not in chosen:
-                trial[h] = lstsq(P0[:, 0], np.column_stack([P0[:, 1:]] + cols + [c]))[1]
-        if not trial:
-            break
-        h = min(trial, key=trial.get)
-        new_bic = n * math.log(trial[h] / n) + 2 * (len(chosen) + 1) * math.log(n)
-        if new_bic >= bic:
-            break
-        bic, sse = new_bic, trial[h]
-        chosen.append(h); cols.append(cand[h])
-    return sorted(chosen), bic
+    C = eng.project(*_harmonic_cols(t, f0, range(1, hmax + 1)))
+    X = np.column_stack([P0[:, 1:], C])
+    th, sse = lstsq(P0[:, 0], X)
+    cov = np.linalg.pinv(X.T @ X) * sse / max(n - X.shape[1], 1)
+    keep = []
+    for i in range(hmax):
+        j = slice(2 + 2 * i, 4 + 2 * i)
+        w = th[j] @ np.linalg.solve(cov[j, j], th[j])
+        if w > chi2_min:
+            keep.append(i + 1)
+    if not keep:
+        return [], np.inf
+    X = np.column_stack([P0[:, 1:], eng.project(*_harmonic_cols(t, f0, keep))])
+    sse = lstsq(P0[:, 0], X)[1]
+    return keep, n * math.log(sse / n) + 2 * len(keep) * math.log(n)
 
 
 def spindle_candidates(eng, data, spindle_hz=None) -> list:

@@ -205,7 +205,7 @@ class LinearModel:
         return np.r_[np.full(self.m, hist), cmd[:len(cmd) - self.m]] if self.m else cmd
 
     def response(self, cmd, force=None, windows: Windows | None = None, hist_cmd=None,
-                 hist_force=None, split: bool = False):
+                 hist_force=None, split: bool = False, with_rigid: bool = True):
         """Output [track] of the linear part (per sample, before each step).
 
         Parameters
@@ -224,6 +224,8 @@ class LinearModel:
             blocks start in steady state for them.
         split : bool
             Return ``(rigid, flexible)`` separately.
+        with_rigid : bool
+            Compute the rigid block (False: flexible blocks only).
         """
         cmd = np.asarray(cmd, float)
         hc = float(cmd[0]) if hist_cmd is None else float(hist_cmd)
@@ -236,6 +238,8 @@ class LinearModel:
         rigid = np.zeros(len(cmd))
         flex = np.zeros(len(cmd))
         for i, bl in enumerate(self.blocks):
+            if i == 0 and not with_rigid:
+                continue
             terms = [(bl["b_cmd"], w, hc)]
             if xl is not None:
                 terms.append((bl["b_lag"], xl, hc))

@@ -143,6 +143,44 @@ def _bench_on(plant, controller, profiles, settle, k0):
     return rows
 
 
+def _design_and_sweep(cfg, run, pool, plant, truth, controller, native, sweep_dir):
+    """Stages 4 and 5: bench at the log's TPI, then the small sweep (reusing the bench cells)."""
+    import pandas as pd
+    from .profiles import Profile
+    from .sweep import SweepConfig, baseline_profile, cell_key, load_cells, run_sweep
+    with run.stage("design and bench against sine / windowed sine") as rec:
+        bcfg = SweepConfig(plant, controller, [native], list(cfg.lengths), cfg.imax, cfg.settle,
+                           designer=cfg.designer)
+        bs = run_sweep(bcfg, sweep_dir, executor=pool, figures=False)
+        cells = load_cells(sweep_dir)
+        bench = pd.read_csv(bs.table)
+        bench = bench[bench["tpi"] == bcfg.tpis[0]]
+        truth_rows = []
+        if truth is not None:
+            profs = []
+            for L in bcfg.tracks:
+                c = cells[cell_key(bcfg.tpis[0], L)]
+                if c.get("optimal_profile"):
+                    profs.append((L, "optimal", Profile.from_dict(c["optimal_profile"])))
+                for kind in ("sine", "windowed_sine"):
+                    profs.append((L, kind, baseline_profile(plant, controller.sample_rate_hz, kind, L,
+                                                            cfg.imax, cfg.settle)))
+            truth_rows = _bench_on(truth, controller, profs, cfg.settle, plant.k0)
+        rec[3] = f"{len(bcfg.tracks)} lengths, {len(bs.failed_cells)} failed cells"
+
+    with run.stage("small TPI sweep") as rec:
+        tpis = [round(native * f) for f in cfg.sweep_tpi_factors]
+        scfg = SweepConfig(plant, controller, tpis, sorted(set(cfg.sweep_lengths) | set(cfg.lengths)),
+                           cfg.imax, cfg.settle, designer=cfg.designer)
+        ss = run_sweep(scfg, sweep_dir, executor=pool, figures=True,
+                       progress=True)
+        sweep_df = pd.read_csv(ss.table)
+        rec[3] = (f"{ss.total} cells ({ss.skipped} reused from the bench), {ss.computed} computed "
+                  f"at {ss.cells_per_s:.2f} cells/s")
+
+    return bench, truth_rows, sweep_df, ss
+
+
 def run_demo(cfg: DemoConfig) -> dict:
     """Run the pipeline; returns a dict with the report path, tables and stage timings."""
     import pandas as pd
@@ -152,7 +190,7 @@ def run_demo(cfg: DemoConfig) -> dict:
     from .controller import Controller
     from .export import load_tables, write_tables
     from .profiles import Profile
-    from .sweep import SweepConfig, baseline_profile, cell_key, load_cells, run_sweep
+    from .sweep import make_pool
     out = Path(cfg.outdir)
     out.mkdir(parents=True, exist_ok=True)
     figs = out / "figures"
@@ -186,35 +224,12 @@ def run_demo(cfg: DemoConfig) -> dict:
 
     native = TRACK_PITCH_PER_TPI_NM / plant.track_pitch_nm
     sweep_dir = out / "sweep"
-    with run.stage("design and bench against sine / windowed sine") as rec:
-        bcfg = SweepConfig(plant, controller, [native], list(cfg.lengths), cfg.imax, cfg.settle,
-                           designer=cfg.designer)
-        bs = run_sweep(bcfg, sweep_dir, engine="process", workers=cfg.workers, figures=False)
-        cells = load_cells(sweep_dir)
-        bench = pd.read_csv(bs.table)
-        bench = bench[bench["tpi"] == bcfg.tpis[0]]
-        truth_rows = []
-        if truth is not None:
-            profs = []
-            for L in bcfg.tracks:
-                c = cells[cell_key(bcfg.tpis[0], L)]
-                if c.get("optimal_profile"):
-                    profs.append((L, "optimal", Profile.from_dict(c["optimal_profile"])))
-                for kind in ("sine", "windowed_sine"):
-                    profs.append((L, kind, baseline_profile(plant, controller.sample_rate_hz, kind, L,
-                                                            cfg.imax, cfg.settle)))
-            truth_rows = _bench_on(truth, controller, profs, cfg.settle, plant.k0)
-        rec[3] = f"{len(bcfg.tracks)} lengths, {len(bs.failed_cells)} failed cells"
-
-    with run.stage("small TPI sweep") as rec:
-        tpis = [round(native * f) for f in cfg.sweep_tpi_factors]
-        scfg = SweepConfig(plant, controller, tpis, sorted(set(cfg.sweep_lengths) | set(cfg.lengths)),
-                           cfg.imax, cfg.settle, designer=cfg.designer)
-        ss = run_sweep(scfg, sweep_dir, engine="process", workers=cfg.workers, figures=True,
-                       progress=True)
-        sweep_df = pd.read_csv(ss.table)
-        rec[3] = (f"{ss.total} cells ({ss.skipped} reused from the bench), {ss.computed} computed "
-                  f"at {ss.cells_per_s:.2f} cells/s")
+    pool = make_pool(cfg.workers)  # one pool for both sweeps: workers keep their designers
+    try:
+        bench, truth_rows, sweep_df, ss = _design_and_sweep(cfg, run, pool, plant, truth, controller,
+                                                            native, sweep_dir)
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
 
     with run.stage("export firmware tables") as rec:
         ts = load_tables(sweep_dir)

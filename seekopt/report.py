@@ -216,7 +216,8 @@ def _cell(v, fmt: str) -> str:
     if isinstance(v, (bool, np.bool_)):
         return "yes" if v else "no"
     if isinstance(v, (int, float, np.floating, np.integer)):
-        return format(float(v), fmt)
+        x = float(v)
+        return str(int(x)) if x.is_integer() and abs(x) < 1e9 else format(x, fmt)
     return str(v).replace("|", "\\|")
 
 

@@ -58,7 +58,7 @@ from .controller import Controller
 from .profiles import finish_profile, shortest_baseline, t_bang_bang
 
 __all__ = ["SweepError", "SweepConfig", "SweepSummary", "parse_tpi", "parse_tracks", "cell_key",
-           "compute_cell", "run_sweep", "evaluate", "assemble", "load_cells", "BaselineDesigner",
+           "compute_cell", "run_sweep", "evaluate", "make_pool", "assemble", "load_cells", "BaselineDesigner",
            "KINDS", "TIMING_COLUMNS", "COLUMNS"]
 
 #: Profile kinds of a sweep, in table order.
@@ -480,18 +480,26 @@ def _iter_serial(payloads):
             yield p, None, exc
 
 
-def _iter_pool(payloads, workers):
+def make_pool(workers: int | None = None):
+    """A process pool for :func:`run_sweep` (``spawn``: no fork of a threaded parent)."""
     import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-    with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as ex:
-        futs = {ex.submit(compute_cell, p): p for p in payloads}
-        try:
-            for fut in as_completed(futs):
-                exc = fut.exception()
-                yield futs[fut], (None if exc else fut.result()), exc
-        finally:
-            for f in futs:
-                f.cancel()
+    from concurrent.futures import ProcessPoolExecutor
+    return ProcessPoolExecutor(max_workers=workers or os.cpu_count() or 1, mp_context=mp.get_context("spawn"))
+
+
+def _iter_pool(payloads, workers, executor=None):
+    from concurrent.futures import as_completed
+    ex = executor or make_pool(workers)
+    futs = {ex.submit(compute_cell, p): p for p in payloads}
+    try:
+        for fut in as_completed(futs):
+            exc = fut.exception()
+            yield futs[fut], (None if exc else fut.result()), exc
+    finally:
+        for f in futs:
+            f.cancel()
+        if executor is None:
+            ex.shutdown(wait=True, cancel_futures=True)
 
 
 def _iter_dask(payloads, address, workers, client=None):
@@ -530,7 +538,7 @@ def _iter_dask(payloads, address, workers, client=None):
 
 
 def run_sweep(cfg: SweepConfig, outdir, *, engine: str = "process", workers: int | None = None,
-              progress: bool = True, client=None, figures: bool = True) -> SweepSummary:
+              progress: bool = True, client=None, executor=None, figures: bool = True) -> SweepSummary:
     """Run (or resume) a sweep into ``outdir`` and assemble its table and figures.
 
     Parameters
@@ -545,6 +553,9 @@ def run_sweep(cfg: SweepConfig, outdir, *, engine: str = "process", workers: int
         Processes for ``process``/``local`` (default: CPU count, at most the cells to do).
     client : dask.distributed.Client, optional
         Use this Dask client (``engine`` is then ignored).
+    executor : concurrent.futures.Executor, optional
+        Use this (process) pool and leave it running (see :func:`make_pool`); its workers keep
+        their designers between sweeps.
     """
     from tqdm.auto import tqdm
     outdir = Path(outdir)
@@ -556,16 +567,18 @@ def run_sweep(cfg: SweepConfig, outdir, *, engine: str = "process", workers: int
     workers = workers or os.cpu_count() or 1
     if client is not None:
         engine = "dask-client"
+    elif executor is not None:
+        engine = "process"
     elif engine not in ("serial", "process", "local") and not engine.startswith(("tcp://", "tls://")):
         raise SweepError(f"engine {engine!r}: expected serial, process, local or tcp://HOST:PORT")
-    if engine == "process" and (workers <= 1 or len(payloads) <= 1):
+    if engine == "process" and executor is None and (workers <= 1 or len(payloads) <= 1):
         engine = "serial"
     summary = SweepSummary(total=total, skipped=total - len(todo), computed=0, engine=engine)
     t0 = time.perf_counter()
     if payloads:
         _journal(outdir, f"run {cfg.hash()} engine={engine} todo={len(todo)} saved={len(saved)}")
         it = (_iter_serial(payloads) if engine == "serial" else
-              _iter_pool(payloads, min(workers, len(payloads))) if engine == "process" else
+              _iter_pool(payloads, min(workers, len(payloads)), executor) if engine == "process" else
               _iter_dask(payloads, engine, workers, client))
         with tqdm(total=total, initial=summary.skipped, unit="cell", desc="sweep", file=sys.stderr,
                   disable=not progress, dynamic_ncols=True, smoothing=0.1) as bar:
