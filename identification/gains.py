@@ -32,27 +32,25 @@ from scipy import signal
 
 from .plant import ModalPlant, Mode
 
-__all__ = ["mode_filter", "mode_response", "mode_regressors", "modal_gains", "GainFit"]
+__all__ = ["mode_filter", "mode_filters", "fir_filter", "mode_response", "mode_regressors", "modal_gains", "GainFit", "VarPro"]
 
 
-def mode_filter(freq_hz: float, zeta: float, dt: float, delay_s: float = 0.0):
-    """Discrete transfer function ``(b, a)`` (in powers of ``z^-1``) of the unit mode.
+def mode_filters(freqs_hz, zetas, dt: float, delay_s: float = 0.0):
+    """Discrete transfer functions ``[(b, a), ...]`` (powers of ``z^-1``) of unit modes.
 
-    Continuous mode ``e^{-s delay} / (s^2 + 2 zeta w s + w^2)`` [track per (track/(A s^2)) A],
-    ZOH on the input over ``dt`` with the fractional delay ``delay = (m + f) dt``, taken from
-    :class:`identification.plant.DiscretePlant` of ``ModalPlant(k0=1, modes=[Mode(f, zeta, 1)])``::
+    Continuous mode ``e^{-s delay} / (s^2 + 2 zeta w s + w^2)``, ZOH on the input over ``dt`` with the
+    fractional delay ``delay = (m + f) dt``, taken from :class:`identification.plant.DiscretePlant`
+    of ``ModalPlant(k0=1, modes=[Mode(f_r, zeta_r, 1), ...])`` (one discretisation for all the
+    modes; the modes' states are decoupled, so each mode's 2x2 block is its own discretisation)::
 
         x[k+1] = Phi x[k] + Gamma_new u[k-m] + Gamma_old u[k-m-1],   y = C x
 
-    restricted to the mode's two states (the rigid states are decoupled), i.e.
-    ``H(z) = C (zI - Phi)^-1 (Gamma_new z^-m + Gamma_old z^-(m+1))``.
+    i.e. ``H_r(z) = C_r (zI - Phi_r)^-1 (Gamma_new,r z^-m + Gamma_old,r z^-(m+1))``.
 
     Parameters
     ----------
-    freq_hz : float
-        Natural frequency [Hz].
-    zeta : float
-        Damping ratio [-].
+    freqs_hz, zetas : sequence of float
+        Natural frequencies [Hz] and damping ratios [-].
     dt : float
         Sample period of the current [s].
     delay_s : float
@@ -60,26 +58,44 @@ def mode_filter(freq_hz: float, zeta: float, dt: float, delay_s: float = 0.0):
 
     Returns
     -------
-    b, a : ndarray
-        ``lfilter`` coefficients; the DC gain is ``1 / w^2`` [s^2].
+    list of (b, a)
+        ``lfilter`` coefficients; each DC gain is ``1 / w_r^2`` [s^2].
     """
-    dp = ModalPlant(k0=1.0, modes=[Mode(float(freq_hz), float(zeta), 1.0)],
+    freqs_hz, zetas = list(freqs_hz), list(zetas)
+    if not freqs_hz:
+        return []
+    dp = ModalPlant(k0=1.0, modes=[Mode(float(f), float(z), 1.0) for f, z in zip(freqs_hz, zetas)],
                     delay_s=float(delay_s)).discretize(dt)
-    Phi = dp.Phi[2:4, 2:4]
-    gn, go, C = dp.G_new[2:4], dp.G_old[2:4], dp.C[2:4]
-    # H(z) = (C adj(zI - Phi) G) / det(zI - Phi); det = z^2 - tr z + det
-    a = np.array([1.0, -np.trace(Phi), np.linalg.det(Phi)])
-
-    def num(g):  # C adj(zI - Phi) g = (C g) z + (C adj(-Phi) g)
-        adj = np.array([[-Phi[1, 1], Phi[0, 1]], [Phi[1, 0], -Phi[0, 0]]])
-        return np.array([C @ g, C @ adj @ g])          # coefficients of z^1, z^0
-
     m = dp.m
-    b = np.zeros(m + 4)
-    # (n1 z + n0) / (z^2 ...) = (n1 z^-1 + n0 z^-2) / (1 ...); shift by m (new) and m+1 (old)
-    b[m + 1:m + 3] += num(gn)
-    b[m + 2:m + 4] += num(go)
-    return np.trim_zeros(b, "b") if np.any(b) else b[:1], a
+    out = []
+    for r in range(len(freqs_hz)):
+        i = slice(2 + 2 * r, 4 + 2 * r)
+        Phi, gn, go, C = dp.Phi[i, i], dp.G_new[i], dp.G_old[i], dp.C[i]
+        # H(z) = C adj(zI - Phi) g / det(zI - Phi),  det = z^2 - tr(Phi) z + det(Phi)
+        a = np.array([1.0, -np.trace(Phi), np.linalg.det(Phi)])
+        adj = np.array([[-Phi[1, 1], Phi[0, 1]], [Phi[1, 0], -Phi[0, 0]]])
+        b = np.zeros(m + 4)
+        # (n1 z + n0) / (z^2 + ..) = (n1 z^-1 + n0 z^-2) / (1 + ..); shifted by m (new), m + 1 (old)
+        b[m + 1:m + 3] += [C @ gn, C @ adj @ gn]
+        b[m + 2:m + 4] += [C @ go, C @ adj @ go]
+        out.append((b, a))
+    return out
+
+
+def mode_filter(freq_hz: float, zeta: float, dt: float, delay_s: float = 0.0):
+    """``(b, a)`` of one unit mode; see :func:`mode_filters`."""
+    return mode_filters([freq_hz], [zeta], dt, delay_s)[0]
+
+
+def _steady_filter(b, a, u, steady):
+    if not steady:
+        return signal.lfilter(b, a, u)
+    # transposed direct form II state of a constant input u[0] held since -inf
+    n = len(b) - 1
+    a = np.r_[a, np.zeros(n + 1 - len(a))]
+    g = b.sum() / a.sum()                           # DC gain
+    zi = np.cumsum((b - g * a)[::-1])[::-1][1:] * u[0]
+    return signal.lfilter(b, a, u, zi=zi)[0]
 
 
 def mode_response(u, freq_hz: float, zeta: float, dt: float, delay_s: float = 0.0, steady: bool = True):
@@ -90,7 +106,7 @@ def mode_response(u, freq_hz: float, zeta: float, dt: float, delay_s: float = 0.
     u : array_like
         Measured current [A], one value per sample (held over the sample).
     freq_hz, zeta, dt, delay_s : float
-        See :func:`mode_filter`.
+        See :func:`mode_filters`.
     steady : bool
         Start in the steady state of a constant ``u[0]`` held since ``-inf`` (a drive at rest
         before the log starts); otherwise from zero state.
@@ -100,20 +116,26 @@ def mode_response(u, freq_hz: float, zeta: float, dt: float, delay_s: float = 0.
     ndarray
         ``y_r(n)`` [track per unit ``c_r``], same length as ``u``.
     """
-    u = np.asarray(u, dtype=float)
-    b, a = mode_filter(freq_hz, zeta, dt, delay_s)
-    n = max(len(a), len(b)) - 1
-    if steady and n > 0:
-        zi = signal.lfilter_zi(np.pad(b, (0, n + 1 - len(b))), np.pad(a, (0, n + 1 - len(a)))) * u[0]
-        return signal.lfilter(b, a, u, zi=zi)[0]
-    return signal.lfilter(b, a, u)
+    return mode_regressors(u, [freq_hz], [zeta], dt, delay_s, steady)[:, 0]
 
 
 def mode_regressors(u, freqs_hz, zetas, dt: float, delay_s: float = 0.0, steady: bool = True) -> np.ndarray:
-    """Matrix of :func:`mode_response` columns, one per mode: ``Y[:, r] = y_r`` (eq. (9))."""
+    """Matrix of unit-mode responses, one column per mode: ``Y[:, r] = y_r = h_r * u`` (eq. (9))."""
     u = np.asarray(u, dtype=float)
-    cols = [mode_response(u, f, z, dt, delay_s, steady) for f, z in zip(freqs_hz, zetas)]
+    cols = [_steady_filter(b, a, u, steady) for b, a in mode_filters(freqs_hz, zetas, dt, delay_s)]
     return np.column_stack(cols) if cols else np.zeros((len(u), 0))
+
+
+def fir_filter(h, x, steady: bool = False) -> np.ndarray:
+    """``y[k] = sum_j h[j] x[k - j]`` along axis 0, for 1-D or 2-D ``x``; before ``k = 0`` the input is
+    0, or ``x[0]`` held since ``-inf`` if ``steady``."""
+    x = np.asarray(x, dtype=float)
+    p = len(h) - 1
+    xp = np.concatenate([np.repeat(x[:1] * (1.0 if steady else 0.0), p, axis=0), x]) if p else x
+    y = h[0] * xp[p:]
+    for j in range(1, p + 1):
+        y = y + h[j] * xp[p - j:len(xp) - j]
+    return y
 
 
 class GainFit:
@@ -182,3 +204,135 @@ def modal_gains(y, regressors, windows) -> GainFit:
     dof = max(n - R, 1)
     cov = np.linalg.pinv(Ys) / np.outer(scale, scale) * rss / dof
     return GainFit(coef, np.sqrt(np.abs(np.diag(cov))), Ymat, rhs, float(np.sqrt(rss / n)), n)
+
+
+# ------------------------------------------------------------------------- variable projection
+class VarPro:
+    """Output-error fit of position to current over seek segments, linear parameters projected out.
+
+    The model of the measured position on each segment ``[i0, i1)`` is::
+
+        y = k0 R_delay + (k0 bias) B + sum_r (k0 g_r) y_r(f_r, zeta_r, delay) + Z rho + p0_s + v0_s t
+
+    ``R_delay`` the unit-``k0`` ZOH rigid response with the delay restarted at ``i0``
+    (:func:`identification.rigid.zoh_rigid_response`), ``B = t^2/2`` the unit-force bias response,
+    ``y_r`` the unit mode responses over the whole log (eq. (9), :func:`mode_regressors`), ``Z``
+    optional nuisance columns (e.g. run-out harmonics) and ``p0_s, v0_s`` each segment's initial
+    position and velocity.  For given nonlinear parameters the linear ones come from one LS (the
+    generalisation of eqs. (10)-(11) to all linear parameters); the data and every column are first
+    filtered by the whitening FIR ``ar = [1, a_1..a_p]`` (prediction-error form), restricted to the
+    fit rows (each segment minus its first ``p`` samples, where the filter would mix segments) and
+    projected orthogonally to the per-segment ``[1, t]`` (an affine signal stays affine under an
+    FIR filter, so this removes ``p0_s, v0_s`` exactly).
+
+    Nonlinear parameters ``x = [ln f_1..ln f_R, ln zeta_1..ln zeta_R, delay / dt]``; linear
+    coefficients ``c = [k0, k0 bias, k0 g_1..k0 g_R, rho]``.
+    """
+
+    def __init__(self, current_a, position_track, dt: float, segments, ar=None, nuisance=None):
+        from .rigid import SegmentProjector, bias_response
+        self.u = np.asarray(current_a, dtype=float)
+        self.dt = float(dt)
+        self.n = len(self.u)
+        self.ar = None if ar is None else np.asarray(ar, dtype=float)
+        p = 0 if self.ar is None else len(self.ar) - 1
+        self.segments = [(a, b) for a, b in segments if b - a >= p + 8]
+        if not self.segments:
+            raise ValueError("VarPro: no segment long enough")
+        self.starts = [a for a, _ in self.segments]
+        self.proj = SegmentProjector([(a + p, b) for a, b in self.segments], offsets=[p] * len(self.segments))
+        self.bias = bias_response(self.n, self.dt, self.starts)
+        # whitening commutes with the (time-invariant) mode filters: whiten the current once
+        self.uw = self.u if self.ar is None else fir_filter(self.ar, self.u, steady=True)
+        self.yt = self.transform(np.asarray(position_track, dtype=float))
+        self.Z = None if nuisance is None else self.transform(nuisance)
+        self.nfev = 0
+        self._last = (None, None)
+
+    def transform(self, cols):
+        """Whiten, take the fit rows, project out the per-segment ``[1, t]``."""
+        cols = np.asarray(cols, dtype=float)
+        if self.ar is not None:
+            cols = fir_filter(self.ar, cols)
+        return self.proj.project(self.proj.take(cols))
+
+    def mode_columns(self, freqs, zetas, delay_samples):
+        """Transformed unit-mode columns (the modes filter the whitened current)."""
+        M = mode_regressors(self.uw, freqs, zetas, self.dt, delay_samples * self.dt)
+        return self.proj.project(self.proj.take(M))
+
+    def columns(self, freqs, zetas, delay_samples):
+        """Transformed ``[rigid, bias, modes...]`` columns."""
+        from .rigid import zoh_rigid_response
+        R = zoh_rigid_response(self.u, self.dt, delay_samples * self.dt, self.starts)
+        return np.column_stack([self.transform(np.column_stack([R, self.bias])),
+                                self.mode_columns(freqs, zetas, delay_samples)])
+
+    @staticmethod
+    def unpack(x, R=None):
+        """``(freqs_hz, zetas, delay_samples)`` from ``x``."""
+        R = (len(x) - 1) // 2 if R is None else R
+        return np.exp(x[:R]), np.exp(x[R:2 * R]), float(x[2 * R])
+
+    def solve(self, x):
+        """``(X, c, r, Q)``: transformed columns (nuisance last), coefficients, residual, orthonormal basis."""
+        key = np.asarray(x, dtype=float).tobytes()
+        if self._last[0] == key:
+            return self._last[1]
+        f, z, d = self.unpack(x)
+        X = self.columns(f, z, d)
+        if self.Z is not None:
+            X = np.column_stack([X, self.Z])
+        s = np.linalg.norm(X, axis=0)
+        s[s == 0] = 1.0
+        Q, Rm = np.linalg.qr(X / s)
+        c = np.linalg.lstsq(Rm, Q.T @ self.yt, rcond=None)[0] / s
+        r = self.yt - X @ c
+        self.nfev += 1
+        self._last = (key, (X, c, r, Q))
+        return X, c, r, Q
+
+    def residual(self, x):
+        return self.solve(x)[2]
+
+    def jacobian(self, x, full: bool = False):
+        """Kaufman's variable-projection Jacobian ``-P_perp (dX/dx_k) c`` (the derivative columns by
+        finite differences of the affected regressors only).  ``full=True`` returns
+        ``(J, r)`` with ``J = -[dX/dx c, X]``, the Jacobian with respect to ``[x, c]`` (the
+        per-segment nuisance already projected out), for the covariance."""
+        R = (len(x) - 1) // 2
+        X, c, r, Q = self.solve(x)
+        f, z, d = self.unpack(x)
+        D = np.zeros((len(r), len(x)))
+        for k in range(R):
+            for j, (df, dz) in enumerate(((1e-6, 0.0), (0.0, 1e-4))):
+                col = self.mode_columns([f[k] * np.exp(df)], [z[k] * np.exp(dz)], d)
+                D[:, k + j * R] = (col[:, 0] - X[:, 2 + k]) / (df + dz) * c[2 + k]
+        h = 1e-3
+        Xd = self.columns(f, z, d + h)
+        D[:, 2 * R] = (Xd - X[:, :2 + R]) @ c[:2 + R] / h
+        if full:
+            return -np.column_stack([D, X]), r
+        return -(D - Q @ (Q.T @ D))
+
+    def fit(self, x0, lb, ub, max_nfev: int = 40):
+        """Levenberg-Marquardt-like trust-region refinement of ``x`` within bounds."""
+        from scipy.optimize import least_squares
+        x0 = np.clip(x0, lb + 1e-9, ub - 1e-9)
+        res = least_squares(self.residual, x0, jac=self.jacobian, bounds=(lb, ub), method="trf",
+                            x_scale="jac", max_nfev=max_nfev, xtol=1e-10, ftol=1e-10)
+        return res.x
+
+    def scan(self, x, freqs, zetas=(0.01, 0.05), chunk: int = 32):
+        """RSS reduction ``(v . r)^2 / ||v||^2`` (``v = P_perp y_r``) of adding one unit mode
+        ``(f, zeta)`` to the model at ``x``, for every grid point.  Returns ``(stat, r)`` with
+        ``stat`` of shape ``(len(freqs), len(zetas))`` and the residual ``r`` at ``x``."""
+        X, c, r, Q = self.solve(x)
+        stat = np.zeros((len(freqs), len(zetas)))
+        for j, zt in enumerate(zetas):
+            for i in range(0, len(freqs), chunk):
+                fs_ = freqs[i:i + chunk]
+                V = self.mode_columns(fs_, [zt] * len(fs_), x[-1])
+                V -= Q @ (Q.T @ V)
+                stat[i:i + len(fs_), j] = (V.T @ r) ** 2 / np.maximum(np.einsum("ij,ij->j", V, V), 1e-300)
+        return stat, r

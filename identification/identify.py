@@ -46,16 +46,15 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import signal
-from scipy.optimize import least_squares
 
-from .gains import mode_regressors, modal_gains
+from .gains import VarPro, mode_regressors, modal_gains
 from .logs import LogError, SeekLog, segment_seeks
 from .plant import ModalPlant, Mode
 from .prony import fit_amplitudes, ls_prony, matrix_pencil, modal_to_z, z_to_modal
-from .rigid import SegmentProjector, bias_response, eq8_fit, rigid_fit, zoh_rigid_response
+from .rigid import bias_response, eq8_fit, rigid_fit, zoh_rigid_response
 
-__all__ = ["Identification", "identify", "heldout_fit", "VarPro"]
+__all__ = ["Identification", "identify", "heldout_fit", "predict_segments", "sandwich_cov", "ar_whitener",
+           "detect_period"]
 
 
 @dataclass
@@ -92,125 +91,6 @@ class Identification:
     residual_rms: float = float("nan")
     timing: dict = field(default_factory=dict)
     diagnostics: dict = field(default_factory=dict)
-
-
-# ------------------------------------------------------------------------------- the OE problem
-class VarPro:
-    """Output-error fit of position to current over seek segments, linear parameters projected out.
-
-    Columns (full log length, one per linear parameter): the unit-``k0`` ZOH rigid response with
-    the delay (restarting at each segment start), the unit-force bias response ``t^2/2`` and each
-    unit mode's response.  Each column and the data are (optionally) filtered by the whitening
-    FIR ``ar`` = ``[1, a_1 .. a_p]``, restricted to the fit rows (each segment minus its first
-    ``p`` samples, where the filter would mix segments) and projected orthogonally to the
-    per-segment ``[1, t]`` (initial position and velocity; an affine signal stays affine under
-    the FIR filter, so the nuisance space is unchanged).
-
-    Nonlinear parameters ``x = [ln f_1..ln f_R, ln zeta_1..ln zeta_R, delay/dt]``.
-    """
-
-    def __init__(self, log: SeekLog, segments, ar=None):
-        self.u = np.asarray(log.current_a, dtype=float)
-        self.y = np.asarray(log.position_track, dtype=float)
-        self.dt = log.dt
-        self.n = len(self.u)
-        self.ar = None if ar is None else np.asarray(ar, dtype=float)
-        p = 0 if self.ar is None else len(self.ar) - 1
-        self.segments = [(a, b) for a, b in segments if b - a >= p + 8]
-        self.starts = [a for a, _ in self.segments]
-        self.proj = SegmentProjector([(a + p, b) for a, b in self.segments], offsets=[p] * len(self.segments))
-        self.bias = bias_response(self.n, self.dt, self.starts)
-        self.yt = self.transform(self.y)
-        self.nfev = 0
-
-    def transform(self, cols):
-        cols = np.asarray(cols, dtype=float)
-        if self.ar is not None:
-            cols = signal.lfilter(self.ar, [1.0], cols, axis=0)
-        return self.proj.project(self.proj.take(cols))
-
-    def raw_columns(self, freqs, zetas, delay_samples):
-        d = delay_samples * self.dt
-        R = zoh_rigid_response(self.u, self.dt, d, self.starts)
-        M = mode_regressors(self.u, freqs, zetas, self.dt, d)
-        return np.column_stack([R, self.bias, M])
-
-    @staticmethod
-    def unpack(x, R):
-        return np.exp(x[:R]), np.exp(x[R:2 * R]), float(x[2 * R])
-
-    def solve(self, x):
-        """Transformed columns, linear coefficients, residual and an orthonormal column basis."""
-        key = np.asarray(x, dtype=float).tobytes()
-        if getattr(self, "_last", (None,))[0] == key:
-            return self._last[1]
-        R = (len(x) - 1) // 2
-        f, z, d = self.unpack(x, R)
-        X = self.transform(self.raw_columns(f, z, d))
-        s = np.linalg.norm(X, axis=0)
-        s[s == 0] = 1.0
-        Q, Rm = np.linalg.qr(X / s)
-        c = np.linalg.solve(Rm, Q.T @ self.yt) / s
-        r = self.yt - X @ c
-        self.nfev += 1
-        self._last = (key, (X, c, r, Q))
-        return X, c, r, Q
-
-    def residual(self, x):
-        return self.solve(x)[2]
-
-    def jacobian(self, x, full=False):
-        """Kaufman's variable-projection Jacobian ``-P_perp (dX/dx_k) c`` (columns by finite
-        differences of the affected regressors).  ``full=True``: the Jacobian with respect to all
-        parameters ``[x, c]`` of the unprojected-linear problem (for the covariance)."""
-        R = (len(x) - 1) // 2
-        X, c, r, Q = self.solve(x)
-        f, z, d = self.unpack(x, R)
-        D = np.zeros((len(r), len(x)))
-        for k in range(R):
-            for j, (df, dz) in enumerate(((1e-6, 0.0), (0.0, 1e-4))):
-                col = mode_regressors(self.u, [f[k] * math.exp(df)], [z[k] * math.exp(dz)], self.dt, d * self.dt)
-                D[:, k + j * R] = (self.transform(col)[:, 0] - X[:, 2 + k]) / (df + dz) * c[2 + k]
-        h = 1e-3
-        Xd = self.transform(self.raw_columns(f, z, d + h))
-        D[:, 2 * R] = (Xd - X) @ c / h
-        if full:
-            return np.column_stack([-D, -X]), r
-        return -(D - Q @ (Q.T @ D))
-
-    def fit(self, x0, lb, ub, max_nfev=60):
-        res = least_squares(self.residual, x0, jac=lambda x: self.jacobian(x), bounds=(lb, ub),
-                            method="trf", x_scale="jac", max_nfev=max_nfev, xtol=1e-10, ftol=1e-10)
-        return res.x
-
-    def scan(self, x, freqs, zetas=(0.005, 0.02, 0.06)):
-        """Residual-sum-of-squares reduction of adding one unit mode ``(f, zeta)`` to the model at
-        ``x``: ``(P_perp v . r)^2 / ||P_perp v||^2`` for each grid point.  Returns (freq, zeta, gain)."""
-        X, c, r, Q = self.solve(x)
-        R = (len(x) - 1) // 2
-        d = x[2 * R] * self.dt
-        best = np.zeros((len(freqs), len(zetas)))
-        for j, zt in enumerate(zetas):
-            V = self.transform(mode_regressors(self.u, freqs, [zt] * len(freqs), self.dt, d))
-            V = V - Q @ (Q.T @ V)
-            best[:, j] = (V.T @ r) ** 2 / np.maximum(np.einsum("ij,ij->j", V, V), 1e-300)
-        return best, r
-
-
-def ar_whitener(resid_segments, order: int):
-    """AR(``order``) prediction-error filter ``[1, a_1..a_p]`` by pooled LS (covariance method)
-    over residual segments (each long enough)."""
-    rows, rhs = [], []
-    for e in resid_segments:
-        if len(e) <= order + 4:
-            continue
-        W = np.lib.stride_tricks.sliding_window_view(e, order + 1)
-        rows.append(W[:, :-1][:, ::-1])
-        rhs.append(W[:, -1])
-    A = np.vstack(rows)
-    b = np.concatenate(rhs)
-    a = np.linalg.lstsq(A, -b, rcond=None)[0]
-    return np.r_[1.0, a]
 
 
 # ------------------------------------------------------------------------------- covariance
@@ -324,7 +204,8 @@ def identify(log: SeekLog, method: str = "robust", **options) -> Identification:
         raise ValueError(f"method must be 'robust' or 'paper', got {method!r}")
     fs = log.sample_rate_hz
     opts = dict(holdout_every=5, freq_range=(100.0, 0.47 * fs), max_modes=12, ar_order=32, t_min=5.0,
-                scan=True, max_nfev=40, prony_order=8)
+                scan=True, max_nfev=40, final_nfev=15, stage_rows=150_000, periodic="auto",
+                periodic_harmonics=10, nw_lags=32, prony_order=8)
     unknown = set(options) - set(opts)
     if unknown:
         raise TypeError(f"identify: unknown option(s) {sorted(unknown)}")
@@ -348,17 +229,54 @@ def identify(log: SeekLog, method: str = "robust", **options) -> Identification:
     return ident
 
 
-def _modes_from(x, c, R):
-    f, z, d = VarPro.unpack(x, R)
-    return f, z, d, c[0], c[1] / c[0], c[2:] / c[0]
+def ar_whitener(resid_segments, order: int):
+    """AR(``order``) prediction-error filter ``[1, a_1..a_p]`` by pooled LS (covariance method) over
+    residual segments: the noise model of the prediction-error fit."""
+    rows, rhs = [], []
+    for e in resid_segments:
+        if len(e) > order + 4:
+            W = np.lib.stride_tricks.sliding_window_view(e, order + 1)
+            rows.append(W[:, :-1][:, ::-1])
+            rhs.append(W[:, -1])
+    if not rows:
+        return None
+    a = np.linalg.lstsq(np.vstack(rows), -np.concatenate(rhs), rcond=None)[0]
+    return np.r_[1.0, a]
 
 
-def _lin_t(vp: VarPro, x):
+def detect_period(rows, r, periods=range(20, 2001), f_min: float = 4.0):
+    """Period (samples) of a repeatable disturbance (run-out) in the residual ``r`` at log indices
+    ``rows``: the period whose phase-bin means explain most variance per bin,
+    ``F(P) = sum_b n_b mean_b^2 / (P sigma^2)`` (~1 without periodicity).  None if ``F < f_min``."""
+    s2 = float(np.mean(r ** 2))
+    best, fbest = None, f_min
+    for P in periods:
+        ph = rows % P
+        cnt = np.bincount(ph, minlength=P)
+        sm = np.bincount(ph, weights=r, minlength=P)
+        ok = cnt > 0
+        F = float(np.sum(sm[ok] ** 2 / cnt[ok])) / ok.sum() / s2
+        if F > fbest:
+            best, fbest = int(P), F
+    return best, fbest
+
+
+def _periodic_columns(n, period, harmonics):
+    k = np.arange(n)
+    cols = []
+    for h in range(1, harmonics + 1):
+        cols += [np.cos(2 * np.pi * h * k / period), np.sin(2 * np.pi * h * k / period)]
+    return np.column_stack(cols)
+
+
+def _t_stats(vp: VarPro, x):
     """|c_r| / std(c_r) of the mode coefficients (white LS covariance of the whitened problem)."""
-    X, c, r, Q = vp.solve(x)
+    R = (len(x) - 1) // 2
+    X, c, r, _ = vp.solve(x)
     s = np.linalg.norm(X, axis=0)
+    s[s == 0] = 1.0
     cov = np.linalg.pinv((X / s).T @ (X / s)) / np.outer(s, s) * float(r @ r) / max(len(r) - X.shape[1], 1)
-    return np.abs(c[2:]) / np.sqrt(np.maximum(np.diag(cov)[2:], 1e-300))
+    return np.abs(c[2:2 + R]) / np.sqrt(np.maximum(np.diag(cov)[2:2 + R], 1e-300))
 
 
 def _drop(x, keep):
@@ -367,124 +285,166 @@ def _drop(x, keep):
     return np.r_[x[:R][keep], x[R:2 * R][keep], x[2 * R]]
 
 
+def _thin(segs, max_rows):
+    """Every k-th segment so that at most ``max_rows`` samples remain (for the search stages)."""
+    total = sum(b - a for a, b in segs)
+    k = max(1, int(math.ceil(total / max_rows)))
+    return segs[::k]
+
+
 def _identify_robust(log: SeekLog, fit_seeks, opts, timing) -> Identification:
     fs, dt = log.sample_rate_hz, log.dt
+    u, y = log.current_a, log.position_track
     lo, hi = opts["freq_range"]
     segs = [(s.start, s.end) for s in fit_seeks]
-    ppo, diag = {}, {}
-    t = time.perf_counter()
-    rf = rigid_fit(log.current_a, log.position_track, segs, dt)
-    timing["rigid"] = time.perf_counter() - t
+    ppo, diag, tabu = {}, {}, []
+    clock = time.perf_counter()
+
+    def lap(name):
+        nonlocal clock
+        now = time.perf_counter()
+        timing[name] = now - clock
+        clock = now
+
+    rf = rigid_fit(u, y, segs, dt)
+    lap("rigid")
     # (a) pooled matrix pencil on the settle windows
-    t = time.perf_counter()
     wins = [log.pes[s.settle:s.end] for s in fit_seeks if s.settled]
     try:
         poles, pdiag = matrix_pencil(wins, fs, freq_range=(lo, hi))
         diag["pencil_order"] = pdiag.order
         diag["pencil_rejected"] = [(float(z_to_modal(z, fs)[0]), why) for z, why in pdiag.rejected]
-    except ValueError as exc:          # no window long enough
+    except ValueError as exc:                      # no window long enough
         poles, diag["pencil_error"] = [], str(exc)
     ppo["pencil"] = [(p.freq_hz, p.zeta) for p in poles]
     diag["settle_modes"] = [(p.freq_hz, p.zeta, p.amplitude) for p in poles]
     cand = sorted((p for p in poles if lo <= p.freq_hz <= hi), key=lambda p: -p.energy)[:opts["max_modes"]]
     x = np.r_[np.log([p.freq_hz for p in cand]), np.log([max(p.zeta, 1e-3) for p in cand]), rf.delay_s / dt]
-    timing["pencil"] = time.perf_counter() - t
+    lap("pencil")
 
     def bounds(x):
         R = (len(x) - 1) // 2
-        lb = np.r_[np.full(R, math.log(0.8 * lo)), np.full(R, math.log(1e-4)), 0.0]
-        ub = np.r_[np.full(R, math.log(0.499 * fs)), np.full(R, math.log(0.7)), 4.0]
-        return lb, ub
+        return (np.r_[np.full(R, math.log(0.8 * lo)), np.full(R, math.log(1e-4)), 0.0],
+                np.r_[np.full(R, math.log(0.499 * fs)), np.full(R, math.log(0.7)), 4.0])
 
-    def refine(vp, x):
-        if len(x) == 1:
-            lb, ub = bounds(x)
-            r = least_squares(vp.residual, x, bounds=(lb, ub), method="trf", max_nfev=opts["max_nfev"])
-            return r.x
-        return vp.fit(np.clip(x, *[b + e for b, e in zip(bounds(x), (1e-9, -1e-9))]), *bounds(x),
-                      max_nfev=opts["max_nfev"])
+    def refine(vp, x, nfev=opts["max_nfev"]):
+        return vp.fit(x, *bounds(x), max_nfev=nfev)
 
-    def whitener(x):
-        if not opts["ar_order"]:
-            return None
-        _, _, r, _ = vp0.solve(x)
-        b = vp0.proj.bounds
-        return ar_whitener([r[b[i]:b[i + 1]] for i in range(len(b) - 1)], int(opts["ar_order"]))
+    def make(seg, x, nuis, white=True):
+        """The OE problem on ``seg``; whitened by an AR model of its residual at ``x``."""
+        vp = VarPro(u, y, dt, seg, nuisance=nuis)
+        if not (white and opts["ar_order"]):
+            return vp, vp
+        b = vp.proj.bounds
+        r = vp.solve(x)[2]
+        ar = ar_whitener([r[b[i]:b[i + 1]] for i in range(len(b) - 1)], int(opts["ar_order"]))
+        return VarPro(u, y, dt, seg, ar=ar, nuisance=nuis), vp
 
     def prune(vp, x):
-        """Drop the least significant mode while any is below t_min, and near-duplicates."""
+        """Drop the least significant mode while any |gain|/std < t_min, and near-duplicates."""
         while (len(x) - 1) // 2 > 0:
             R = (len(x) - 1) // 2
-            tv = _lin_t(vp, x)
-            f = np.exp(x[:R])
-            worst = int(np.argmin(tv))
-            for i in range(R):          # two modes within 1.5 %: keep the more significant
+            tv, f = _t_stats(vp, x), np.exp(x[:R])
+            for i in range(R):                     # two modes within 1.5 %: drop the weaker
                 for j in range(i + 1, R):
                     if abs(f[i] / f[j] - 1) < 0.015:
-                        worst = i if tv[i] < tv[j] else j
-                        tv[worst] = -1.0
+                        tv[i if tv[i] < tv[j] else j] = -1.0
+            worst = int(np.argmin(tv))
             if tv[worst] >= opts["t_min"]:
                 return x
-            x = refine(vp, _drop(x, np.arange(R) != worst))
+            tabu.append(float(f[worst]))
+            x = _drop(x, np.arange(R) != worst)
+            if len(x) > 1:
+                x = refine(vp, x)
         return x
 
-    # (b) output error, then prewhitened, with the scan for missed modes
-    t = time.perf_counter()
-    vp0 = VarPro(log, segs)
+    # (b) search stage on at most stage_rows samples: OE from the pencil poles, repeatable run-out,
+    # AR whitening, then the scan for modes the settle windows did not show
+    sub = _thin(segs, opts["stage_rows"])
+    vp0 = VarPro(u, y, dt, sub)
     if len(x) > 1:
         x = refine(vp0, x)
-    ppo["OE (white)"] = list(zip(*VarPro.unpack(x, (len(x) - 1) // 2)[:2]))
-    vp = VarPro(log, segs, whitener(x))
-    x = prune(vp, refine(vp, x) if len(x) > 1 else x)
-    timing["refine"] = time.perf_counter() - t
-    t = time.perf_counter()
-    grid = np.exp(np.arange(math.log(lo), math.log(hi), math.log(1.015)))
-    added = []
-    while opts["scan"] and (len(x) - 1) // 2 < opts["max_modes"]:
-        stat, r = vp.scan(x, grid)
-        sig2 = float(r @ r) / max(len(r) - (len(x) - 1) // 2 - 2, 1)
-        k = np.unravel_index(int(np.argmax(stat)), stat.shape)
-        if stat[k] / sig2 < opts["t_min"] ** 2 * 2:
-            break
-        fz = (float(grid[k[0]]), (0.005, 0.02, 0.06)[k[1]])
-        added.append(fz + (float(stat[k] / sig2),))
-        R = (len(x) - 1) // 2
-        x = np.r_[x[:R], math.log(fz[0]), x[R:2 * R], math.log(fz[1]), x[2 * R]]
-        x = prune(vp, refine(vp, x))
-    diag["scan_added"] = added
-    timing["scan"] = time.perf_counter() - t
-    # final: AR model from the final OE residual, refit, prune, covariance
-    t = time.perf_counter()
-    vp = VarPro(log, segs, whitener(x))
+    ppo["OE from pencil"] = list(zip(*VarPro.unpack(x)[:2]))
+    period, fstat = (None, 0.0)
+    if opts["periodic"] == "auto":
+        period, fstat = detect_period(vp0.proj.rows, vp0.solve(x)[2])
+    elif opts["periodic"]:
+        period = int(opts["periodic"])
+    nuis = _periodic_columns(log.n, period, opts["periodic_harmonics"]) if period else None
+    diag.update(periodic_period_samples=period, periodic_F=fstat)
+    vp, _ = make(sub, x, nuis)
     if len(x) > 1:
         x = prune(vp, refine(vp, x))
-    R = (len(x) - 1) // 2
-    ppo["final"] = list(zip(*VarPro.unpack(x, R)[:2]))
-    J, r = vp.jacobian(x, full=True)
-    cov, cov_white = sandwich_cov(J, r, vp.proj.bounds, lags=max(int(opts["ar_order"]), 16))
-    X, c, r, _ = vp.solve(x)
-    f, z, d, k0, bias, g = _modes_from(x, c, R)
+    lap("refine")
+    grid = np.exp(np.arange(math.log(lo), math.log(hi), math.log(1.02)))
+    zetas = (0.01, 0.05)
+    added = []
+    for _ in range(opts["max_modes"]):
+        R = (len(x) - 1) // 2
+        if not opts["scan"] or R >= opts["max_modes"]:
+            break
+        stat, r = vp.scan(x, grid, zetas)
+        s2 = float(r @ r) / max(len(r) - R - 2, 1)
+        best = stat.max(axis=1) / s2
+        for f0 in tabu + list(np.exp(x[:R])):      # not again where a mode was dropped or already is
+            best[np.abs(grid / f0 - 1) < 0.03] = 0.0
+        peaks = [i for i in np.argsort(best)[::-1] if best[i] > 2 * opts["t_min"] ** 2]
+        new = []
+        for i in peaks:                            # local maxima, >= 5 % apart, up to 3 per round
+            if all(abs(grid[i] / grid[j] - 1) > 0.05 for j in new) and len(new) < min(3, opts["max_modes"] - R):
+                new.append(i)
+        if not new:
+            break
+        for i in new:
+            zt = zetas[int(np.argmax(stat[i]))]
+            added.append((float(grid[i]), zt, float(best[i])))
+            tabu.append(float(grid[i]))             # each grid point is proposed once
+            R = (len(x) - 1) // 2
+            x = np.r_[x[:R], math.log(grid[i]), x[R:2 * R], math.log(zt), x[2 * R]]
+        x = prune(vp, refine(vp, x))
+    diag["scan_added"], diag["tabu_hz"] = added, tabu
+    lap("scan")
+    # final stage on all fit seeks: AR model from the OE residual, refine, prune, covariance
+    vp, vp0 = make(segs, x, nuis)
+    if len(x) > 1:
+        x = prune(vp, refine(vp, x, opts["final_nfev"]))
+    while True:                                     # covariance; drop modes not significant in it
+        R = (len(x) - 1) // 2
+        J, r = vp.jacobian(x, full=True)
+        cov, cov_white = sandwich_cov(J, r, vp.proj.bounds, lags=opts["nw_lags"])
+        X, c, r, _ = vp.solve(x)
+        tv = np.abs(c[2:2 + R]) / np.maximum(np.sqrt(np.diag(cov)[len(x) + 2:len(x) + 2 + R]), 1e-300)
+        if R == 0 or tv.min() >= opts["t_min"]:
+            break
+        x = _drop(x, np.arange(R) != int(np.argmin(tv)))
+        if len(x) > 1:
+            x = refine(vp, x, opts["final_nfev"])
+    ppo["final"] = list(zip(*VarPro.unpack(x)[:2]))
+    f, z, d = VarPro.unpack(x)
     sd = np.sqrt(np.abs(np.diag(cov)))
     nx = len(x)
-    cc = cov[nx:, nx:]                                      # covariance of c = [k0, k0 bias, k0 g]
+    cc = cov[nx:, nx:]                              # covariance of c = [k0, k0 bias, k0 g, rho]
 
-    def ratio_std(i):                                       # std of c_i / c_0
-        gv = np.zeros(len(c)); gv[0] = -c[i] / c[0] ** 2; gv[i] = 1.0 / c[0]
+    def ratio_std(i):                               # delta method: std of c_i / c_0
+        gv = np.zeros(len(c))
+        gv[0], gv[i] = -c[i] / c[0] ** 2, 1.0 / c[0]
         return float(np.sqrt(max(gv @ cc @ gv, 0.0)))
-    modes = [Mode(float(f[i]), float(z[i]), float(g[i]),
+
+    modes = [Mode(float(f[i]), float(z[i]), float(c[2 + i] / c[0]),
                   {"freq_hz": float(f[i] * sd[i]), "zeta": float(z[i] * sd[R + i]), "gain": ratio_std(2 + i)})
              for i in np.argsort(f)]
-    plant = ModalPlant(k0=float(k0), modes=modes, bias_a=float(bias), delay_s=float(d * dt), sample_rate_hz=fs,
-                       track_pitch_nm=log.track_pitch_nm,
+    plant = ModalPlant(k0=float(c[0]), modes=modes, bias_a=float(c[1] / c[0]), delay_s=float(d * dt),
+                       sample_rate_hz=fs, track_pitch_nm=log.track_pitch_nm,
                        std={"k0": float(sd[nx]), "bias_a": ratio_std(1), "delay_s": float(sd[2 * R] * dt)})
     r_oe = vp0.solve(x)[2]
     infl = np.sqrt(np.diag(cov) / np.maximum(np.diag(cov_white), 1e-300))
     diag.update(ar_order=int(opts["ar_order"]), std_inflation_median=float(np.median(infl)),
                 std_inflation_max=float(np.max(infl)), whitened_residual_rms=float(np.sqrt(np.mean(r ** 2))),
-                t_stat=[float(v) for v in np.abs(c[2:]) / np.maximum(np.sqrt(np.diag(cc)[2:]), 1e-300)],
+                t_stat=[float(v) for v in np.abs(c[2:2 + R]) / np.maximum(np.sqrt(np.diag(cc)[2:2 + R]), 1e-300)],
                 rigid_init={"k0": rf.k0, "bias_a": rf.bias_a, "delay_s": rf.delay_s},
-                n_fit_rows=int(vp.proj.n_rows), nfev=vp.nfev + vp0.nfev)
-    timing["final"] = time.perf_counter() - t
+                n_fit_rows=int(vp.proj.n_rows), n_stage_rows=int(sum(b - a for a, b in sub)),
+                nfev=vp.nfev + vp0.nfev)
+    lap("final")
     return Identification(plant, "robust", ppo, residual_rms=float(np.sqrt(np.mean(r_oe ** 2))), diagnostics=diag)
 
 

@@ -283,12 +283,18 @@ class Residual:
     y_sim : ndarray
         Simulated position [track], anchored, full log length (NaN outside windows).
     log : SeekLog
+    cmd, force : ndarray or None
+        With ``simulate(..., record=True)``: the command after ``input`` effects and the
+        net undelayed force (bias + ``force`` effects) the simulation applied [A]
+        (NaN where not simulated).
     """
 
     windows: Windows
     e: np.ndarray
     y_sim: np.ndarray
     log: SeekLog
+    cmd: np.ndarray | None = None      #: command after input effects [A] (``record=True``)
+    force: np.ndarray | None = None    #: net undelayed force [A] (``record=True``)
 
     @property
     def rms(self) -> float:
@@ -312,9 +318,10 @@ def fit_percent(log: SeekLog, windows: Windows, e: np.ndarray) -> float:
     return float(100.0 * (1.0 - np.linalg.norm(e) / max(np.linalg.norm(den), 1e-300)))
 
 
-def simulate(plant: ModalPlant, log: SeekLog, windows: Windows, passes: int | None = None) -> Residual:
-    """Reference simulation: ``DiscretePlant`` stepped over the whole log from the measured
-    current, rigid states re-anchored at each window start, anchors fitted by LS.
+def simulate(plant: ModalPlant, log: SeekLog, windows: Windows, passes: int | None = None,
+             continuous: bool = True, record: bool = False) -> Residual:
+    """Reference simulation: ``DiscretePlant`` stepped from the measured current, rigid
+    states re-anchored at each window start, anchors fitted by least squares.
 
     Parameters
     ----------
@@ -325,6 +332,12 @@ def simulate(plant: ModalPlant, log: SeekLog, windows: Windows, passes: int | No
     passes : int, optional
         Anchor passes; default 1 for plants whose effects do not depend on the state,
         else 2 (the second starts from the anchors fitted by the first).
+    continuous : bool
+        True: step the whole log (modes, amplifier and delay line carry over between
+        windows).  False: step the windows only, each from rest at its start
+        (``DiscretePlant.reset`` with the previous current held before it).
+    record : bool
+        Also record the command and force sequences applied (last pass).
     """
     u, y, dt = log.current_a, log.position_track, log.dt
     state_dep = any(e.kind in ("input", "force") for e in plant.effects)
@@ -332,16 +345,29 @@ def simulate(plant: ModalPlant, log: SeekLog, windows: Windows, passes: int | No
     v = velocity_estimate(log)
     anchors = {a: (y[a], v[a]) for a, _ in windows.bounds}
     basis = LinearModel(plant.linear_part(), dt).free_basis
-    starts = {a: b for a, b in windows.bounds}
     for _ in range(passes):
         dp = plant.discretize(dt)
-        dp.reset(y[0], 0.0, current=u[0], t0=log.time_s[0])
-        ysim = np.empty(log.n)
-        for k in range(log.n):
-            if k in starts:
-                dp.x[0], dp.x[1] = anchors[k]
-            ysim[k] = dp.output()
-            dp.step(u[k])
+        ysim = np.full(log.n, np.nan)
+        if continuous:
+            dp.reset(y[0], 0.0, current=u[0], t0=log.time_s[0])
+            spans, starts = [(0, log.n)], {a for a, _ in windows.bounds}
+        else:
+            spans, starts = windows.bounds, set()
+        step, output = dp.step, dp.output
+        cmd_r = np.full(log.n, np.nan) if record else None
+        f_r = np.full(log.n, np.nan) if record else None
+        for a0, b0 in spans:
+            if not continuous:   # from rest at the window start; time keeps the log's origin
+                dp.reset(*anchors[a0], current=u[max(a0 - 1, 0)], t0=log.time_s[0])
+                dp.k = a0
+            for k in range(a0, b0):
+                if k in starts:
+                    dp.x[0], dp.x[1] = anchors[k]
+                ysim[k] = output()
+                if record:
+                    cmd_r[k] = dp.command(u[k], dp.x[0])
+                    f_r[k] = dp.net_force(dp.x[0], dp.x[1])
+                step(u[k])
         e_parts, ys = [], np.full(log.n, np.nan)
         for a, b in windows.bounds:
             B = basis(b - a)
@@ -350,7 +376,7 @@ def simulate(plant: ModalPlant, log: SeekLog, windows: Windows, passes: int | No
             ys[a:b] = ysim[a:b] + B @ c
             e_parts.append(r - B @ c)
             anchors[a] = (anchors[a][0] + c[0], anchors[a][1] + c[1])
-    return Residual(windows, np.concatenate(e_parts) if e_parts else np.zeros(0), ys, log)
+    return Residual(windows, np.concatenate(e_parts) if e_parts else np.zeros(0), ys, log, cmd_r, f_r)
 
 
 def residual(plant: ModalPlant, log: SeekLog, windows: Windows | None = None) -> Residual:

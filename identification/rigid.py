@@ -163,20 +163,23 @@ class SegmentProjector:
         self.lengths = np.array([b - a for a, b in segs])
         self.rows = np.concatenate([np.arange(a, b) for a, b in segs])
         self.seg_id = np.repeat(np.arange(len(segs)), self.lengths)
-        self.bounds = np.r_[0, np.cumsum(self.lengths)]
+        self.bounds = np.r_[0, np.cumsum(self.lengths)][:len(segs) + 1]
         t = np.concatenate([np.arange(n, dtype=float) + o for n, o in zip(self.lengths, offsets)])
-        # orthonormal per-segment polynomial basis (QR of [1, t, ...] within each segment)
+        # orthonormal per-segment polynomial basis: Gram-Schmidt on 1, t, t^2 .. within each segment
         self.degree = int(degree)
-        q = []
-        for k, (lo, hi) in enumerate(zip(self.bounds[:-1], self.bounds[1:])):
-            tt = t[lo:hi] / max(hi - lo, 1)
-            V = np.vander(tt, self.degree + 1, increasing=True)
-            Q, _ = np.linalg.qr(V)
-            q.append(Q[:, :min(self.degree + 1, hi - lo)])
-        w = max(Q.shape[1] for Q in q)
-        self.Q = np.zeros((len(self.rows), w))
-        for k, Q in enumerate(q):
-            self.Q[self.bounds[k]:self.bounds[k + 1], :Q.shape[1]] = Q
+        scale = np.repeat(np.maximum(self.lengths, 1).astype(float), self.lengths)
+        tt = t / scale
+        Q = []
+        for d in range(self.degree + 1):
+            v = tt ** d
+            for _ in range(2):                       # twice is enough (re-orthogonalisation)
+                for q in Q:
+                    v = v - q * np.add.reduceat(q * v, self.bounds[:-1])[self.seg_id]
+            nrm = np.sqrt(np.add.reduceat(v * v, self.bounds[:-1]))
+            ok = nrm > 1e-9 * np.sqrt(self.lengths)  # segments too short for this degree get 0
+            v = v * np.where(ok, 1.0 / np.where(ok, nrm, 1.0), 0.0)[self.seg_id]
+            Q.append(v)
+        self.Q = np.column_stack(Q)
         self.t = t
 
     @property

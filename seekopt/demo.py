@@ -257,13 +257,13 @@ def _summary_table(bench, truth_rows):
     from .report import seek_settle_s
     b = bench.copy()
     b["seek_settle_ms"] = 1e3 * seek_settle_s(b)
-    t = b.pivot_table(index="tracks", columns="kind", values="seek_settle_ms", aggfunc="first")
+    t = b.pivot_table(index="tracks", columns="kind", values="seek_settle_ms", aggfunc="first", dropna=False)
     t.columns = [f"{c} [ms]" for c in t.columns]
     if truth_rows:
         tr = pd.DataFrame(truth_rows)
         tr["status"] = "ok"
         tr["seek_settle_ms"] = 1e3 * seek_settle_s(tr)
-        tt = tr.pivot_table(index="tracks", columns="kind", values="seek_settle_ms", aggfunc="first")
+        tt = tr.pivot_table(index="tracks", columns="kind", values="seek_settle_ms", aggfunc="first", dropna=False)
         for c in tt.columns:
             t[f"{c} on truth [ms]"] = tt[c]
     return t.reset_index().round(3)

@@ -88,7 +88,7 @@ def savings_table(df):
     sine, windowed sine and the better of the two."""
     import pandas as pd
     df = _with_t(df)
-    wide = df.pivot_table(index=["tpi", "tracks"], columns="kind", values="seek_settle_s", aggfunc="first")
+    wide = df.pivot_table(index=["tpi", "tracks"], columns="kind", values="seek_settle_s", aggfunc="first", dropna=False)
     out = pd.DataFrame(index=wide.index)
     for k in wide.columns:
         out[f"{k}_ms"] = 1e3 * wide[k]

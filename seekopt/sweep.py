@@ -3,7 +3,8 @@
 One *cell* is a pair ``(tpi, tracks)``.  For each cell the plant is re-expressed
 at that TPI (:meth:`identification.plant.ModalPlant.at_tpi`: the physical gain in
 m/(A s^2) is kept, ``k0`` in track/(A s^2) scales with TPI, the settle band stays
-in tracks), the optimal profile is designed (one pluggable call, default
+in tracks; the controller's gain in A/track is scaled with the track pitch so the
+physical loop is the same, see :func:`controller_at_tpi`), the optimal profile is designed (one pluggable call, default
 :class:`seekopt.ocp.SeekDesigner`), and the optimal, sine and windowed-sine
 profiles are evaluated side by side with :func:`seekopt.metrics.evaluate_profile`
 (which runs the one simulator, :func:`seekopt.simulate.simulate_2dof`).
@@ -58,7 +59,8 @@ from .controller import Controller
 from .profiles import finish_profile, shortest_baseline, t_bang_bang
 
 __all__ = ["SweepError", "SweepConfig", "SweepSummary", "parse_tpi", "parse_tracks", "cell_key",
-           "compute_cell", "run_sweep", "evaluate", "make_pool", "assemble", "load_cells", "BaselineDesigner",
+           "compute_cell", "run_sweep", "evaluate", "make_pool", "assemble", "load_cells",
+           "BaselineDesigner", "baseline_profile", "controller_at_tpi", "write_atomic",
            "KINDS", "TIMING_COLUMNS", "COLUMNS"]
 
 #: Profile kinds of a sweep, in table order.
@@ -68,8 +70,8 @@ TIMING_COLUMNS = ("solve_time_s", "eval_time_s")
 _METRICS = ("seek_time_s", "settle_time_s", "peak_pes_after_track", "rms_pes_after_track",
             "peak_current_a", "ratio_tbb", "settled")
 #: Columns of ``results.csv``.
-COLUMNS = ("tpi", "track_pitch_nm", "k0_track", "controller_gain", "tracks", "kind", "status", "error", "designer",
-           "design_status", "solver", "objective", "t_bb_s", "n_samples") + _METRICS + TIMING_COLUMNS
+COLUMNS = ("tpi", "track_pitch_nm", "k0_track", "controller_gain", "tracks", "kind", "status", "error",
+           "designer", "design_status", "solver", "objective", "t_bb_s", "n_samples") + _METRICS + TIMING_COLUMNS
 
 
 class SweepError(ValueError):
@@ -484,7 +486,14 @@ def make_pool(workers: int | None = None):
     """A process pool for :func:`run_sweep` (``spawn``: no fork of a threaded parent)."""
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor
-    return ProcessPoolExecutor(max_workers=workers or os.cpu_count() or 1, mp_context=mp.get_context("spawn"))
+    return ProcessPoolExecutor(max_workers=workers or os.cpu_count() or 1, mp_context=mp.get_context("spawn"),
+                               initializer=_worker_init)
+
+
+def _worker_init() -> None:
+    """Pool workers leave Ctrl-C to the driving process (which saves what is done and stops)."""
+    import signal
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _iter_pool(payloads, workers, executor=None):
