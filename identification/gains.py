@@ -32,7 +32,8 @@ from scipy import signal
 
 from .plant import ModalPlant, Mode
 
-__all__ = ["mode_filter", "mode_filters", "fir_filter", "mode_response", "mode_regressors", "modal_gains", "GainFit", "VarPro"]
+__all__ = ["mode_filter", "mode_filters", "fir_filter", "mode_response", "mode_regressors", "modal_gains", "GainFit", "VarPro",
+           "ar_whitener", "detect_period", "periodic_columns", "sandwich_cov"]
 
 
 def mode_filters(freqs_hz, zetas, dt: float, delay_s: float = 0.0):
@@ -304,10 +305,11 @@ class VarPro:
         X, c, r, Q = self.solve(x)
         f, z, d = self.unpack(x)
         D = np.zeros((len(r), len(x)))
-        for k in range(R):
-            for j, (df, dz) in enumerate(((1e-6, 0.0), (0.0, 1e-4))):
-                col = self.mode_columns([f[k] * np.exp(df)], [z[k] * np.exp(dz)], d)
-                D[:, k + j * R] = (col[:, 0] - X[:, 2 + k]) / (df + dz) * c[2 + k]
+        hf, hz = 1e-6, 1e-4                    # steps in ln f and ln zeta
+        if R:
+            cols = self.mode_columns(np.r_[f * np.exp(hf), f], np.r_[z, z * np.exp(hz)], d)
+            D[:, :R] = (cols[:, :R] - X[:, 2:2 + R]) / hf * c[2:2 + R]
+            D[:, R:2 * R] = (cols[:, R:] - X[:, 2:2 + R]) / hz * c[2:2 + R]
         h = 1e-3
         Xd = self.columns(f, z, d + h)
         D[:, 2 * R] = (Xd - X[:, :2 + R]) @ c[:2 + R] / h
@@ -336,3 +338,71 @@ class VarPro:
                 V -= Q @ (Q.T @ V)
                 stat[i:i + len(fs_), j] = (V.T @ r) ** 2 / np.maximum(np.einsum("ij,ij->j", V, V), 1e-300)
         return stat, r
+
+
+# ------------------------------------------------------------------------- noise model, covariance
+def ar_whitener(resid_segments, order: int):
+    """AR(``order``) prediction-error filter ``[1, a_1..a_p]`` by pooled LS (covariance method) over
+    residual segments: the noise model of the prediction-error fit."""
+    rows, rhs = [], []
+    for e in resid_segments:
+        if len(e) > order + 4:
+            W = np.lib.stride_tricks.sliding_window_view(e, order + 1)
+            rows.append(W[:, :-1][:, ::-1])
+            rhs.append(W[:, -1])
+    if not rows:
+        return None
+    a = np.linalg.lstsq(np.vstack(rows), -np.concatenate(rhs), rcond=None)[0]
+    return np.r_[1.0, a]
+
+
+def detect_period(rows, r, periods=range(20, 2001), f_min: float = 4.0):
+    """Period (samples) of a repeatable disturbance (run-out) in the residual ``r`` at log indices
+    ``rows``: the period whose phase-bin means explain most variance per bin,
+    ``F(P) = sum_b n_b mean_b^2 / (P sigma^2)`` (~1 without periodicity).  None if ``F < f_min``."""
+    s2 = float(np.mean(r ** 2))
+    best, fbest = None, f_min
+    for P in periods:
+        ph = rows % P
+        cnt = np.bincount(ph, minlength=P)
+        sm = np.bincount(ph, weights=r, minlength=P)
+        ok = cnt > 0
+        F = float(np.sum(sm[ok] ** 2 / cnt[ok])) / ok.sum() / s2
+        if F > fbest:
+            best, fbest = int(P), F
+    return best, fbest
+
+
+def periodic_columns(n: int, period: float, harmonics: int) -> np.ndarray:
+    """``[cos(2 pi h k / P), sin(2 pi h k / P)]`` for ``h = 1..harmonics``, ``k = 0..n-1`` (run-out nuisance)."""
+    k = np.arange(n)
+    cols = []
+    for h in range(1, harmonics + 1):
+        cols += [np.cos(2 * np.pi * h * k / period), np.sin(2 * np.pi * h * k / period)]
+    return np.column_stack(cols)
+
+
+def sandwich_cov(J, r, bounds, lags: int):
+    """Covariance of LS estimates with serially correlated residuals (Newey-West, Bartlett weights).
+
+    ``J`` (rows x params) and ``r`` are stacked segments with row ``bounds``; cross products are taken
+    only within segments.  Returns ``(cov, cov_white)`` where ``cov_white = s^2 (J^T J)^-1`` is the
+    plain Gauss-Newton covariance scaled by the residual variance.
+    """
+    s = np.linalg.norm(J, axis=0)
+    s[s == 0] = 1.0
+    Js = J / s
+    B = np.linalg.pinv(Js.T @ Js)
+    dof = max(len(r) - J.shape[1], 1)
+    cov_white = B * float(r @ r) / dof
+    G = Js * r[:, None]
+    M = G.T @ G
+    for lag in range(1, lags + 1):
+        w = 1.0 - lag / (lags + 1.0)
+        ok = np.ones(len(r) - lag, dtype=bool)
+        for b in bounds[1:-1]:           # pairs (i, i + lag) that straddle a segment boundary
+            ok[max(b - lag, 0):b] = False
+        C = G[:-lag][ok].T @ G[lag:][ok]
+        M += w * (C + C.T)
+    cov = B @ M @ B * len(r) / dof
+    return cov / np.outer(s, s), cov_white / np.outer(s, s)

@@ -47,14 +47,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .gains import VarPro, mode_regressors, modal_gains
+from .gains import (VarPro, ar_whitener, detect_period, modal_gains, mode_regressors, periodic_columns,
+                    sandwich_cov)
 from .logs import LogError, SeekLog, segment_seeks
 from .plant import ModalPlant, Mode
 from .prony import fit_amplitudes, ls_prony, matrix_pencil, modal_to_z, z_to_modal
 from .rigid import bias_response, eq8_fit, rigid_fit, zoh_rigid_response
 
-__all__ = ["Identification", "identify", "heldout_fit", "predict_segments", "sandwich_cov", "ar_whitener",
-           "detect_period"]
+__all__ = ["Identification", "identify", "heldout_fit", "predict_segments", "runout_signal"]
 
 
 @dataclass
@@ -93,40 +93,24 @@ class Identification:
     diagnostics: dict = field(default_factory=dict)
 
 
-# ------------------------------------------------------------------------------- covariance
-def sandwich_cov(J, r, bounds, lags: int):
-    """Covariance of LS estimates with serially correlated residuals (Newey-West, Bartlett weights).
-
-    ``J`` (rows x params) and ``r`` are stacked segments with row ``bounds``; cross products are taken
-    only within segments.  Returns ``(cov, cov_white)`` where ``cov_white = s^2 (J^T J)^-1`` is the
-    plain Gauss-Newton covariance scaled by the residual variance.
-    """
-    s = np.linalg.norm(J, axis=0)
-    s[s == 0] = 1.0
-    Js = J / s
-    B = np.linalg.pinv(Js.T @ Js)
-    dof = max(len(r) - J.shape[1], 1)
-    cov_white = B * float(r @ r) / dof
-    G = Js * r[:, None]
-    M = G.T @ G
-    inseg = np.ones(len(r), dtype=bool)
-    for lag in range(1, lags + 1):
-        w = 1.0 - lag / (lags + 1.0)
-        ok = np.ones(len(r) - lag, dtype=bool)
-        for b in bounds[1:-1]:           # pairs (i, i + lag) that straddle a segment boundary
-            ok[max(b - lag, 0):b] = False
-        C = G[:-lag][ok].T @ G[lag:][ok]
-        M += w * (C + C.T)
-    del inseg
-    cov = B @ M @ B * len(r) / dof
-    return cov / np.outer(s, s), cov_white / np.outer(s, s)
-
-
 # ------------------------------------------------------------------------------- held-out fit
-def predict_segments(log: SeekLog, plant: ModalPlant, segments, steady: bool = True):
-    """Predicted position on each segment ``[i0, i1)``: the plant's response to the measured current
-    (modes over the whole log, rigid body and bias restarted at ``i0``) plus the initial position
-    and velocity fitted by LS over the segment.  Returns a list of arrays [track]."""
+def runout_signal(n: int, runout: dict | None) -> np.ndarray:
+    """The identified repeatable run-out [track] at log samples ``0..n-1`` (zeros if None):
+    ``sum_h a_h cos(2 pi h k / P) + b_h sin(2 pi h k / P)``."""
+    if not runout:
+        return np.zeros(n)
+    Z = periodic_columns(n, runout["period_samples"], len(runout["cos_track"]))
+    return Z @ np.ravel(np.column_stack([runout["cos_track"], runout["sin_track"]]))
+
+
+def predict_segments(log: SeekLog, plant: ModalPlant, segments, init=None, steady: bool = True, runout=None):
+    """Predicted position [track] on each segment ``[i0, i1)`` (list of arrays).
+
+    The plant's response to the measured current -- modes run over the whole log (their state at
+    ``i0`` comes from the current history), rigid body and bias restarted at ``i0`` -- plus an
+    initial position and velocity fitted by LS over ``init[j] = (a, b)`` (log indices inside the
+    segment; default the whole segment), plus the identified run-out (:func:`runout_signal`) if given.
+    """
     dt, u = log.dt, log.current_a
     starts = [a for a, _ in segments]
     d = plant.delay_s
@@ -134,25 +118,36 @@ def predict_segments(log: SeekLog, plant: ModalPlant, segments, steady: bool = T
     if plant.modes:
         M = mode_regressors(u, [m.freq_hz for m in plant.modes], [m.zeta for m in plant.modes], dt, d, steady)
         y = y + M @ (plant.k0 * np.array([m.gain for m in plant.modes]))
+    if runout:
+        y = y + runout_signal(len(u), runout)
     out = []
-    for a, b in segments:
-        t = np.arange(b - a, dtype=float)
-        V = np.column_stack([np.ones_like(t), t / max(len(t), 1)])
-        e = log.position_track[a:b] - y[a:b]
-        out.append(y[a:b] + V @ np.linalg.lstsq(V, e, rcond=None)[0])
+    for j, (a, b) in enumerate(segments):
+        ia, ib = (a, b) if init is None else init[j]
+        t = (np.arange(a, b, dtype=float) - a) / max(b - a, 1)
+        V = np.column_stack([np.ones_like(t), t])
+        k = slice(ia - a, ib - a)
+        coef = np.linalg.lstsq(V[k], log.position_track[ia:ib] - y[ia:ib], rcond=None)[0]
+        out.append(y[a:b] + V @ coef)
     return out
 
 
-def heldout_fit(log: SeekLog, plant: ModalPlant, seeks) -> float:
+def heldout_fit(log: SeekLog, plant: ModalPlant, seeks, init: str = "seek", runout=None) -> float:
     """Fit % ``100 (1 - ||y - y_hat|| / ||y - mean(y)||)`` of the settle-window PES of ``seeks``.
 
-    ``y_hat`` from :func:`predict_segments` on each seek (seek start to end, initial position and
-    velocity fitted over the seek), compared on the settle windows ``[settle, end)`` only.
+    ``y`` is the PES on the settle windows ``[N, M]`` of the (settled) seeks, concatenated;
+    ``y_hat`` the PES predicted by :func:`predict_segments` over each seek, its initial position and
+    velocity fitted over the whole seek (``init="seek"``: a simulation from the seek start, the
+    definition used for :attr:`Identification.fit_percent`) or over the settle window only
+    (``init="window"``: insensitive to the double-integrated force noise accumulated during
+    the seek).  ``runout`` (``Identification.diagnostics["runout"]``) adds the identified repeatable
+    run-out to the prediction.
     """
-    seeks = [s for s in seeks if s.settled and s.end - s.start >= 4]
+    seeks = [s for s in seeks if s.settled and s.settle - s.start >= 2 and s.end - s.settle >= 4]
     if not seeks:
         return float("nan")
-    pred = predict_segments(log, plant, [(s.start, s.end) for s in seeks])
+    segs = [(s.start, s.end) for s in seeks]
+    pred = predict_segments(log, plant, segs, None if init == "seek" else [(s.settle, s.end) for s in seeks],
+                            runout=runout)
     y = np.concatenate([log.pes[s.settle:s.end] for s in seeks])
     yh = np.concatenate([p[s.settle - s.start:] - log.target_track[s.settle:s.end] for p, s in zip(pred, seeks)])
     return float(100.0 * (1.0 - np.linalg.norm(y - yh) / np.linalg.norm(y - y.mean())))
@@ -217,56 +212,20 @@ def identify(log: SeekLog, method: str = "robust", **options) -> Identification:
     ident = run(log, fit_seeks, opts, timing)
     t1 = time.perf_counter()
     if held:
-        ident.fit_percent = heldout_fit(log, ident.plant, held)
-        ident.fit_percent_rigid = heldout_fit(log, ident.plant.copy(modes=[]), held)
+        ro, rigid = ident.diagnostics.get("runout"), ident.plant.copy(modes=[])
+        ident.fit_percent = heldout_fit(log, ident.plant, held, runout=ro)
+        ident.fit_percent_rigid = heldout_fit(log, rigid, held, runout=ro)
+        ident.diagnostics["fit_percent_window_init"] = heldout_fit(log, ident.plant, held, "window", ro)
+        ident.diagnostics["fit_percent_rigid_window_init"] = heldout_fit(log, rigid, held, "window", ro)
     timing["heldout"] = time.perf_counter() - t1
     timing["total"] = time.perf_counter() - t0
     ident.timing = timing
     ident.diagnostics.update(n_samples=log.n, n_seeks=len(seeks), n_fit_seeks=len(fit_seeks),
-                             n_heldout_seeks=len(held),
+                             n_heldout_seeks=len(held), holdout_every=opts["holdout_every"] if held else 0,
                              samples_per_s=log.n / timing["total"] if timing["total"] > 0 else float("inf"))
-    ident.plant.meta.update(method=method, log=log.source or "<arrays>", fit_percent=ident.fit_percent)
+    fit = None if math.isnan(ident.fit_percent) else round(ident.fit_percent, 3)
+    ident.plant.meta.update(method=method, log=log.source or "<arrays>", heldout_fit_percent=fit)
     return ident
-
-
-def ar_whitener(resid_segments, order: int):
-    """AR(``order``) prediction-error filter ``[1, a_1..a_p]`` by pooled LS (covariance method) over
-    residual segments: the noise model of the prediction-error fit."""
-    rows, rhs = [], []
-    for e in resid_segments:
-        if len(e) > order + 4:
-            W = np.lib.stride_tricks.sliding_window_view(e, order + 1)
-            rows.append(W[:, :-1][:, ::-1])
-            rhs.append(W[:, -1])
-    if not rows:
-        return None
-    a = np.linalg.lstsq(np.vstack(rows), -np.concatenate(rhs), rcond=None)[0]
-    return np.r_[1.0, a]
-
-
-def detect_period(rows, r, periods=range(20, 2001), f_min: float = 4.0):
-    """Period (samples) of a repeatable disturbance (run-out) in the residual ``r`` at log indices
-    ``rows``: the period whose phase-bin means explain most variance per bin,
-    ``F(P) = sum_b n_b mean_b^2 / (P sigma^2)`` (~1 without periodicity).  None if ``F < f_min``."""
-    s2 = float(np.mean(r ** 2))
-    best, fbest = None, f_min
-    for P in periods:
-        ph = rows % P
-        cnt = np.bincount(ph, minlength=P)
-        sm = np.bincount(ph, weights=r, minlength=P)
-        ok = cnt > 0
-        F = float(np.sum(sm[ok] ** 2 / cnt[ok])) / ok.sum() / s2
-        if F > fbest:
-            best, fbest = int(P), F
-    return best, fbest
-
-
-def _periodic_columns(n, period, harmonics):
-    k = np.arange(n)
-    cols = []
-    for h in range(1, harmonics + 1):
-        cols += [np.cos(2 * np.pi * h * k / period), np.sin(2 * np.pi * h * k / period)]
-    return np.column_stack(cols)
 
 
 def _t_stats(vp: VarPro, x):
@@ -355,7 +314,7 @@ def _identify_robust(log: SeekLog, fit_seeks, opts, timing) -> Identification:
             tabu.append(float(f[worst]))
             x = _drop(x, np.arange(R) != worst)
             if len(x) > 1:
-                x = refine(vp, x)
+                x = refine(vp, x, opts["final_nfev"])
         return x
 
     # (b) search stage on at most stage_rows samples: OE from the pencil poles, repeatable run-out,
@@ -370,7 +329,7 @@ def _identify_robust(log: SeekLog, fit_seeks, opts, timing) -> Identification:
         period, fstat = detect_period(vp0.proj.rows, vp0.solve(x)[2])
     elif opts["periodic"]:
         period = int(opts["periodic"])
-    nuis = _periodic_columns(log.n, period, opts["periodic_harmonics"]) if period else None
+    nuis = periodic_columns(log.n, period, opts["periodic_harmonics"]) if period else None
     diag.update(periodic_period_samples=period, periodic_F=fstat)
     vp, _ = make(sub, x, nuis)
     if len(x) > 1:
@@ -380,7 +339,7 @@ def _identify_robust(log: SeekLog, fit_seeks, opts, timing) -> Identification:
     zetas = (0.01, 0.05)
     added = []
     for _ in range(opts["max_modes"]):
-        R = (len(x) - 1) // 2
+        R = R0 = (len(x) - 1) // 2
         if not opts["scan"] or R >= opts["max_modes"]:
             break
         stat, r = vp.scan(x, grid, zetas)
@@ -402,6 +361,8 @@ def _identify_robust(log: SeekLog, fit_seeks, opts, timing) -> Identification:
             R = (len(x) - 1) // 2
             x = np.r_[x[:R], math.log(grid[i]), x[R:2 * R], math.log(zt), x[2 * R]]
         x = prune(vp, refine(vp, x))
+        if (len(x) - 1) // 2 <= R0:                # the round gained no mode: stop
+            break
     diag["scan_added"], diag["tabu_hz"] = added, tabu
     lap("scan")
     # final stage on all fit seeks: AR model from the OE residual, refine, prune, covariance
@@ -437,6 +398,10 @@ def _identify_robust(log: SeekLog, fit_seeks, opts, timing) -> Identification:
                        sample_rate_hz=fs, track_pitch_nm=log.track_pitch_nm,
                        std={"k0": float(sd[nx]), "bias_a": ratio_std(1), "delay_s": float(sd[2 * R] * dt)})
     r_oe = vp0.solve(x)[2]
+    if nuis is not None:
+        rho = c[2 + R:]
+        diag["runout"] = {"period_samples": int(period), "cos_track": rho[0::2].tolist(),
+                          "sin_track": rho[1::2].tolist()}
     infl = np.sqrt(np.diag(cov) / np.maximum(np.diag(cov_white), 1e-300))
     diag.update(ar_order=int(opts["ar_order"]), std_inflation_median=float(np.median(infl)),
                 std_inflation_max=float(np.max(infl)), whitened_residual_rms=float(np.sqrt(np.mean(r ** 2))),

@@ -2,13 +2,13 @@
 
 Two estimators:
 
-* :func:`eq8_fit` -- the paper's eq. (8) (Section 3.1), exactly as printed::
+* :func:`eq8_fit` -- the paper's eq. (8) (Section 3.1)::
 
       y(i) = sum_{j=0}^{i} sum_{k=0}^{j} ( b0 u(k) - b1 )
 
   LS for ``(b0, b1)`` through the 2x2 normal equations ``[U] [b0, b1]^T = [...]``, applied to each
-  seek from its start to its end with the position relative to the start, normal equations
-  pooled over the seeks.  ``k0`` follows from ``b0`` (:func:`k0_from_b0`).
+  seek from its start to its end with the position relative to the start (the sample before the
+  first sample of the seek, where eq. (8) has ``y(-1) = 0``), normal equations pooled over the seeks.  ``k0`` follows from ``b0`` (:func:`k0_from_b0`).
 
 * :func:`rigid_fit` -- the fit the robust method starts from: the ZOH double integrator with
   fractional input delay of :mod:`identification.plant` (exactly how the plant is stepped),
@@ -88,7 +88,9 @@ def eq8_fit(current_a, position_track, segments, dt: float, bias_regressor: str 
     """The paper's eq. (8) rigid-body fit, pooled over seek segments.
 
     For each segment ``[i0, i1)`` (seek start to end): ``u(i) = current_a[i0 + i]``,
-    ``y(i) = position_track[i0 + i] - position_track[i0]``, ``i = 0..M`` with ``M = i1 - i0 - 1``;
+    ``y(i) = position_track[i0 + i] - position_track[i0 - 1]`` (relative to the last sample before
+    the seek, where eq. (8) has ``y(-1) = 0``; ``position_track[0]`` if ``i0 = 0``),
+    ``i = 0..M`` with ``M = i1 - i0 - 1``;
     regressors ``phi0(i) = sum_{j<=i} sum_{k<=j} u(k)`` and ``phi1(i) = -sum_{j<=i} sum_{k<=j} 1``
     (``bias_regressor="printed"``: ``-sum_{j<=i} j``).  The normal equations
     ``U [b0, b1]^T = [sum_i y phi0, sum_i y phi1]^T`` with
@@ -117,7 +119,7 @@ def eq8_fit(current_a, position_track, segments, dt: float, bias_regressor: str 
         if i1 - i0 < 3:
             continue
         u = u_all[i0:i1]
-        y = y_all[i0:i1] - y_all[i0]
+        y = y_all[i0:i1] - y_all[max(i0 - 1, 0)]
         i = np.arange(i1 - i0, dtype=float)
         one = (i + 1) * (i + 2) / 2 if bias_regressor == "cost" else i * (i + 1) / 2
         X = np.column_stack([double_sum(u), -one])
@@ -324,7 +326,7 @@ def rigid_fit(current_a, position_track, segments, dt: float, delay_range=(0.0, 
     costs = np.array([cost(g) for g in grid])
     j = int(np.argmin(costs))
     lo, hi = grid[max(j - 1, 0)], grid[min(j + 1, ngrid - 1)]
-    d = minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 1e-4}).x if hi > lo else lo
+    d = minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 1e-6}).x if hi > lo else lo
     c, r, X = _rigid_ls(u, y, dt, d * dt, proj, starts)
     dof = max(proj.n_rows - proj.n_nuisance - 2, 1)
     s2 = float(r @ r) / dof

@@ -87,7 +87,43 @@ def cmd_synth(args) -> int:
 
 
 def cmd_identify(args) -> int:
-    raise NotImplementedError("identify: not wired yet")
+    """``seekopt identify LOG [-o plant.json] [--method robust|paper] [--figures DIR]``: identify the
+    modal plant, print the modes with one-standard-deviation uncertainties, k0, bias, delay and the
+    held-out fit; a bad log raises LogError (one line, exit 2 via :func:`main`)."""
+    from identification.identify import identify
+    from identification.logs import read_log
+    log = read_log(args.log)
+    res = identify(log, method=args.method)
+    p, sd = res.plant, res.plant.std
+
+    def pm(value, key, std, fmt):
+        s = (std or {}).get(key)
+        return f"{value:{fmt}} ± {s:{fmt}}" if s is not None and s == s else f"{value:{fmt}}" + " " * 12
+    d = res.diagnostics
+    print(f"{args.log}: {log.n} samples at {log.sample_rate_hz:g} Hz, {d.get('n_seeks')} seeks "
+          f"({d.get('n_fit_seeks')} fitted, {d.get('n_heldout_seeks')} held out); method {res.method}")
+    print(f"  k0    = {pm(p.k0, 'k0', sd, '.6g')} track/(A s^2)")
+    print(f"  bias  = {pm(p.bias_a * 1e3, 'bias_a', {k: v * 1e3 for k, v in sd.items()}, '.4f')} mA")
+    print(f"  delay = {pm(p.delay_s * 1e6, 'delay_s', {k: v * 1e6 for k, v in sd.items()}, '.3f')} us")
+    print(f"  {'#':>3} {'freq [Hz]':>22} {'zeta [-]':>22} {'gain [-]':>26}")
+    for i, m in enumerate(p.modes, 1):
+        print(f"  {i:>3} {pm(m.freq_hz, 'freq_hz', m.std, '9.2f'):>22} {pm(m.zeta, 'zeta', m.std, '9.5f'):>22} "
+              f"{pm(m.gain, 'gain', m.std, '11.4e'):>26}")
+    if not p.modes:
+        print("      (no significant mode)")
+    fit, rig = res.fit_percent, res.fit_percent_rigid
+    if fit == fit:
+        print(f"  held-out fit (settle-window PES): {fit:.1f} % (rigid body only: {rig:.1f} %)")
+    else:
+        print("  held-out fit: n/a (too few seeks to hold any out)")
+    if args.output:
+        p.to_json(args.output)
+        print(f"wrote {args.output}")
+    if args.figures:
+        from identification.figures import plot_identification
+        for path in plot_identification(log, res, args.figures):
+            print(f"wrote {path}")
+    return 0
 
 
 def cmd_design(args) -> int:

@@ -86,22 +86,27 @@ def identify_plant(log):
 
 
 def close_loop(log, plant):
-    """Run :mod:`identification.closing` on ``(log, plant)``.
+    """:func:`identification.closing.close_loop` on ``(log, plant)`` (held-out seeks validate).
 
-    Returns ``(plant, summary)``: the (possibly augmented) plant and a one-paragraph summary,
+    Returns ``(plant, summary)``: the (possibly augmented) plant and a short Markdown summary,
     or ``(plant, None)`` when the module is not available (the stage is then reported skipped).
     """
     try:
-        from identification import closing
+        from identification.closing import close_loop as _close
     except ImportError:
         return plant, None
-    fn = getattr(closing, "close_loop", None)
-    if fn is None:
-        return plant, None
-    res = fn(log, plant)
-    new = getattr(res, "plant", None) or plant
-    summary = getattr(res, "summary", None)
-    return new, (summary() if callable(summary) else str(summary or "loop closed"))
+    res = _close(log, plant)
+    eb, ea = res.error_before, res.error_after
+    lines = [f"Validation RMS error {eb['rms_track']:.4g} -> {ea['rms_track']:.4g} track "
+             f"(fit {eb['fit_percent']:.1f} % -> {ea['fit_percent']:.1f} %); accepted effects: "
+             + (", ".join(res.accepted) or "none") + "."]
+    tried = [f"- {s.effect}: validation RMS {s.rms_before:.4g} -> {s.rms_after:.4g} track, "
+             f"BIC drop {s.bic_drop:.1f}, {'accepted' if s.accepted else 'rejected'}" for s in res.steps]
+    if tried:
+        lines += ["", "Candidates tried:", ""] + tried
+    if res.unexplained:
+        lines += ["", "Still in the residual:", ""] + [f"- {u}" for u in res.unexplained]
+    return res.plant, "\n".join(lines)
 
 
 # ------------------------------------------------------------------ stages
