@@ -67,7 +67,7 @@ class Data:
     def subset(self, max_samples: int) -> "Data":
         """Every k-th window so that at most ~``max_samples`` samples remain."""
         k = max(1, math.ceil(self.n / max_samples))
-        return Data(self.log, Windows(self.windows.bounds[::k]), self.v, self.v_scale, self.frozen)
+        return Data(self.log, self.windows.every(k), self.v, self.v_scale, self.frozen)
 
     def freeze(self, plant: ModalPlant, res) -> "Data":
         """The same data, with the command and state-dependent force that the reference
@@ -167,15 +167,15 @@ def lstsq(r: np.ndarray, Z: np.ndarray, bounds=None):
 
 
 def cluster_cov(Z: np.ndarray, e: np.ndarray, data: Data) -> np.ndarray:
-    """Covariance of LS coefficients robust to any correlation within a window (clusters)."""
+    """Covariance of LS coefficients robust to any correlation within a seek (clusters)."""
     Zi = np.linalg.pinv(Z.T @ Z)
-    meat = np.zeros((Z.shape[1], Z.shape[1]))
+    scores = {}
     i = 0
-    for a, b in data.windows.bounds:
-        g = Z[i:i + b - a].T @ e[i:i + b - a]
-        meat += np.outer(g, g)
+    for (a, b), g in zip(data.windows.bounds, data.windows.groups):
+        scores[g] = scores.get(g, 0.0) + Z[i:i + b - a].T @ e[i:i + b - a]
         i += b - a
-    m = len(data.windows)
+    meat = sum(np.outer(v, v) for v in scores.values())
+    m = len(scores)
     return Zi @ meat @ Zi * m / max(m - 1, 1)
 
 
@@ -266,7 +266,7 @@ def fit_amplifier_lag(plant, data):
     fs = data.log.sample_rate_hz
     p, bw = _vp_search(data, lambda b: plant.copy(effects=plant.effects + [AmplifierLag(float(b))]),
                        np.geomspace(0.02 * fs, 20 * fs, 10), log_scale=True)
-    if bw > 10 * fs:        # no lag within reach of the data
+    if bw > 0.5 * fs:       # a lag faster than the Nyquist rate is a fractional delay to the data
         return None
     return Fit("amplifier_lag", p, 1, {"bandwidth_hz": float(bw)})
 
@@ -283,10 +283,12 @@ def fit_current_saturation(plant, data):
     return Fit("current_saturation", p, 1, {"limit_a": float(lim)})
 
 
-def _linear_fit(plant, data, cols, rigid=False, bounds=None, channel="force", with_bias=True):
+def _linear_fit(plant, data, cols, rigid=False, bounds=None, channel="force", with_bias=True,
+                centred=False):
     """Fit extra regressors (features through the force or command channel) with the base.
 
-    Returns ``(base_theta, theta, sse, wald_chi2_of_theta)``."""
+    Returns ``(base_theta, theta, sse, wald_chi2)``; the Wald statistic tests ``theta = 0``
+    or, with ``centred``, equal ``theta`` (variation only, for bins that sum to a base term)."""
     eng = Engine(plant, data)
     base = eng.base_cols() if with_bias else eng.base_cols()[:1]
     feats = [eng.resp(force=c, rigid_only=rigid) if channel == "force" else eng.resp(cmd=c) for c in cols]
@@ -295,9 +297,12 @@ def _linear_fit(plant, data, cols, rigid=False, bounds=None, channel="force", wi
     bnd = None if bounds is None else ([-np.inf] * nb + list(bounds[0]), [np.inf] * nb + list(bounds[1]))
     th, sse = lstsq(P[:, 0], P[:, 1:], bnd)
     e = P[:, 0] - P[:, 1:] @ th
-    cov = cluster_cov(P[:, 1:], e, data)
-    j = slice(nb, None)
-    return th[:nb], th[nb:], sse, wald(th[j], cov[j, j])
+    cov = cluster_cov(P[:, 1:], e, data)[nb:, nb:]
+    t = th[nb:]
+    if centred:
+        C = (np.eye(len(t)) - 1.0 / len(t))[:-1]
+        t, cov = C @ t, C @ cov @ C.T
+    return th[:nb], th[nb:], sse, wald(t, cov)
 
 
 def fit_friction(plant, data, max_sim_samples: int = 5000):
@@ -313,22 +318,24 @@ def fit_friction(plant, data, max_sim_samples: int = 5000):
                "Coulomb level and bias refined by simulation (the head sticks in dwell)")
 
 
-def sim_refine(plant: ModalPlant, data: Data, max_iter: int = 30) -> ModalPlant:
-    """Refine the last effect's Coulomb level and ``bias_a`` by ``DiscretePlant`` simulation
-    (Nelder-Mead on the output-error SSE: sticking makes it non-smooth)."""
+def sim_refine(plant: ModalPlant, data: Data, max_iter: int = 45) -> ModalPlant:
+    """Refine the last effect's (friction) Coulomb and viscous levels and ``bias_a`` by
+    ``DiscretePlant`` simulation (Nelder-Mead on the output-error SSE: sticking makes it
+    non-smooth)."""
     fr = plant.effects[-1]
-    c0, b0 = max(fr.coulomb_a, 1e-6), plant.bias_a
-    scale = np.array([0.1 * c0, 0.05 * c0])
+    c0, v0, b0 = max(fr.coulomb_a, 1e-6), fr.viscous_a_per_tps, plant.bias_a
+    vmax = float(np.abs(data.v[data.windows.index()]).max())
+    scale = np.array([0.1 * c0, 0.05 * c0, max(0.2 * v0, 0.05 * c0 / vmax)])
 
     def make(x):
-        c, bias = c0 + x[0] * scale[0], b0 + x[1] * scale[1]
-        return plant.copy(bias_a=bias, effects=plant.effects[:-1] + [Friction(max(c, 0.0), fr.viscous_a_per_tps)])
+        c, bias, vis = c0 + x[0] * scale[0], b0 + x[1] * scale[1], v0 + x[2] * scale[2]
+        return plant.copy(bias_a=bias, effects=plant.effects[:-1] + [Friction(max(c, 0.0), max(vis, 0.0))])
 
     def cost(x):
         e = simulate(make(x), data.log, data.windows, passes=1, continuous=False).e
         return float(e @ e)
-    simplex = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
-    r = minimize(cost, np.zeros(2), method="Nelder-Mead",
+    simplex = np.vstack([np.zeros(3), np.eye(3)])
+    r = minimize(cost, np.zeros(3), method="Nelder-Mead",
                  options={"initial_simplex": simplex, "xatol": 0.02, "fatol": 1e-4, "maxiter": max_iter})
     return make(r.x)
 
@@ -376,15 +383,17 @@ def _pick_by_bic(plant, data, fits):
 
 def fit_position_bias(plant, data):
     lo, hi = _pos_range(data)
-    fits = []
+    fits, walds = [], {}
     for K in (3, 5, 9):
         knots = np.linspace(lo, hi, K)
-        (k,), th, _, w = _linear_fit(plant, data, _hats(data.log.position_track, knots), with_bias=False)
+        (k,), th, _, w = _linear_fit(plant, data, _hats(data.log.position_track, knots), with_bias=False,
+                                     centred=True)
         eff = PositionBias([float(x) for x in knots], [float(t / (1 + k)) for t in th])
         fits.append((K - 1, refit_base(plant.copy(k0=plant.k0 * (1 + k), effects=plant.effects + [eff]), data)))
-        if K == 3 and w < MIN_WALD:
-            return None
+        walds[K - 1] = w
     n, p = _pick_by_bic(plant, data, fits)
+    if walds[n] < MIN_WALD:
+        return None
     return Fit("position_bias", p, n, p.effects[-1].params)
 
 
@@ -463,19 +472,40 @@ def _harmonic_fit(eng, P0, data, f0, hs):
     return X, th, sse
 
 
-def _select_harmonics(eng, P0, data, f0, hmax):
-    """Fit harmonics 1..hmax jointly and keep those whose (cos, sin) pair is significant
-    (cluster-robust Wald > MIN_WALD); returns ``(harmonics, sse)``."""
-    X, th, _ = _harmonic_fit(eng, P0, data, f0, range(1, hmax + 1))
-    cov = cluster_cov(X, P0[:, 0] - X @ th, data)
-    keep = [h for h in range(1, hmax + 1)
-            if wald(th[2 * h:2 * h + 2], cov[2 * h:2 * h + 2, 2 * h:2 * h + 2]) > MIN_WALD]
-    return keep, (_harmonic_fit(eng, P0, data, f0, keep)[2] if keep else np.inf)
+def _cv_sse(y: np.ndarray, X: np.ndarray, data: Data) -> float:
+    """2-fold cross-validated SSE over interleaved windows (fit on one half, test on the other)."""
+    lens = np.array([b - a for a, b in data.windows.bounds])
+    half = np.repeat(np.arange(len(lens)) < len(lens) // 2, lens)   # first / second half in time
+    sse = 0.0
+    for tr in (half, ~half):
+        th = lstsq(y[tr], X[tr])[0]
+        r = y[~tr] - X[~tr] @ th
+        sse += float(r @ r)
+    return sse
+
+
+def _select_harmonics(eng, P0, data, f0, hmax, min_gain: float = 0.01):
+    """Forward selection of harmonics 1..hmax by 2-fold cross-validated SSE (each added
+    harmonic must lower it by ``min_gain``); returns ``(harmonics, cv_sse)``."""
+    C = eng.project(*_harmonic_cols(data.log.time_s, f0, range(1, hmax + 1)))
+    y, base = P0[:, 0], P0[:, 1:]
+    keep, best = [], _cv_sse(y, base, data)
+    while True:
+        trial = {h: _cv_sse(y, np.column_stack([base] + [C[:, 2 * j - 2:2 * j] for j in keep + [h]]), data)
+                 for h in range(1, hmax + 1) if h not in keep}
+        if not trial:
+            break
+        h = min(trial, key=trial.get)
+        if trial[h] > (1 - min_gain) * best:
+            break
+        keep.append(h)
+        best = trial[h]
+    return sorted(keep), best
 
 
 def spindle_candidates(eng, data, spindle_hz=None) -> list:
     """Spindle frequencies to try [Hz]: given, from metadata (``spindle_hz``/``spindle_rpm``),
-    else the harmonic-sum peaks of the residual and their doubles / halves."""
+    else the three strongest harmonic-sum peaks of the residual (strongest first)."""
     if spindle_hz:
         return [float(spindle_hz)]
     md = data.log.metadata
@@ -487,8 +517,8 @@ def spindle_candidates(eng, data, spindle_hz=None) -> list:
     e = np.zeros(data.log.n)
     e[data.windows.index()] = eng.residual()
     out = []
-    for f, _ in detect_spindle(e, data.windows, data.log.sample_rate_hz, top=2):
-        out += [f, 2 * f, f / 2]
+    for f, _ in detect_spindle(e, data.windows, data.log.sample_rate_hz, top=3):
+        out += [f]
     return [f for f in dict.fromkeys(round(x, 3) for x in out) if 20.0 <= f <= 400.0]
 
 
@@ -498,9 +528,10 @@ def fit_periodic_disturbance(plant, data, spindle_hz=None):
     P0 = eng.project(eng.target(), *eng.base_cols())
     known = bool(spindle_hz) or any(k in data.log.metadata for k in ("spindle_hz", "spindle_rpm", "rpm"))
     best = None
-    for f0 in spindle_candidates(eng, data, spindle_hz):
+    for i, f0 in enumerate(spindle_candidates(eng, data, spindle_hz)):
         hs, sse = _select_harmonics(eng, P0, data, f0, int(min(8, 0.45 * fs / f0)))
-        if hs and (best is None or sse < best[0]):
+        # the strongest detected peak first; an alternative must do clearly better
+        if hs and (best is None or sse < 0.98 * best[0]):
             best = (sse, f0, hs)
     if best is None:
         return None

@@ -171,7 +171,8 @@ def fig6_settle_pes(log: SeekLog, ident: Identification, seeks=None, n_seeks: in
 
 def plot_identification(log: SeekLog, ident: Identification, outdir, truth=None, prefix: str = "") -> list:
     """Write ``fig3_modes.png``, ``fig4_spectra.png``, ``fig5_tf.png``, ``fig6_settle_pes.png`` and
-    ``fig6_settle_pes_window_init.png`` to ``outdir`` (created) and return their paths.  ``truth``: a :class:`ModalPlant` to overlay."""
+    ``fig6_settle_pes_window_init.png`` to ``outdir`` (created) and return their paths.
+    ``truth``: a :class:`ModalPlant` to overlay (synthetic logs)."""
     plt = _plt()
     out = Path(outdir)
     out.mkdir(parents=True, exist_ok=True)

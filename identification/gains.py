@@ -17,13 +17,16 @@ Convention.  ``h_r`` is the ZOH discretisation, with the plant's fractional inpu
 unit mode ``1 / (s^2 + 2 zeta_r w_r s + w_r^2)`` (``w_r = 2 pi f_r`` the natural frequency,
 ERRATA item 2), so the linear coefficient is ``c_r = k0 g_r`` [track/(A s^2)] and the modal
 gain of :class:`identification.plant.ModalPlant` is ``g_r = c_r / k0``.  The discretisation is
-*not* re-derived here: :func:`mode_filter` takes the matrices of the one discretisation
-(:class:`identification.plant.DiscretePlant`) of a one-mode plant and turns them into the
-transfer function that :func:`scipy.signal.lfilter` runs, which is exact for the linear plant
-stepped at the log's rate.
+*not* re-derived here: :func:`mode_filters` takes the matrices of the one discretisation
+(:class:`identification.plant.DiscretePlant`) of a plant with these modes and turns each mode's
+block into the transfer function that :func:`scipy.signal.lfilter` runs, which is exact for the
+linear plant stepped at the log's rate.
 
-These regressors are also the linear step of the variable-projection fit in
-:mod:`identification.identify` (the gains are projected out for given poles).
+:class:`VarPro` generalises eqs. (10)-(11) to the robust method's output-error fit: for given poles
+and delay, all linear parameters (``k0``, bias, gains, per-segment initial conditions, run-out) are
+one LS problem that is projected out (variable projection).  The noise model (:func:`ar_whitener`),
+the run-out period (:func:`detect_period`, :func:`periodic_columns`) and the covariance
+(:func:`sandwich_cov`) of that fit are here too.
 """
 from __future__ import annotations
 
@@ -32,8 +35,8 @@ from scipy import signal
 
 from .plant import ModalPlant, Mode
 
-__all__ = ["mode_filter", "mode_filters", "fir_filter", "mode_response", "mode_regressors", "modal_gains", "GainFit", "VarPro",
-           "ar_whitener", "detect_period", "periodic_columns", "sandwich_cov"]
+__all__ = ["mode_filter", "mode_filters", "fir_filter", "mode_response", "mode_regressors", "modal_gains",
+           "GainFit", "VarPro", "ar_whitener", "detect_period", "periodic_columns", "sandwich_cov"]
 
 
 def mode_filters(freqs_hz, zetas, dt: float, delay_s: float = 0.0):

@@ -46,9 +46,16 @@ __all__ = ["Windows", "seek_windows", "LinearModel", "Residual", "simulate", "re
 # ----------------------------------------------------------------------------- windows
 @dataclass
 class Windows:
-    """Half-open index ranges ``[a, b)`` into a log, each simulated with its own anchor."""
+    """Half-open index ranges ``[a, b)`` into a log, each with its own anchor (initial
+    position and velocity); ``groups[i]`` is the seek window ``i`` belongs to (contiguous
+    windows of one seek are simulated in one go and only re-anchored)."""
 
     bounds: list
+    groups: list | None = None
+
+    def __post_init__(self):
+        if self.groups is None:
+            self.groups = list(range(len(self.bounds)))
 
     def __len__(self) -> int:
         return len(self.bounds)
@@ -62,34 +69,40 @@ class Windows:
         return np.concatenate([np.arange(a, b) for a, b in self.bounds]) if self.bounds \
             else np.zeros(0, int)
 
-    def subset(self, sel) -> "Windows":
-        return Windows([self.bounds[i] for i in sel])
+    def select_groups(self, keep) -> "Windows":
+        keep = set(keep)
+        sel = [i for i, g in enumerate(self.groups) if g in keep]
+        return Windows([self.bounds[i] for i in sel], [self.groups[i] for i in sel])
 
     def split(self, n: int) -> list:
-        """``n`` interleaved subsets (window i goes to subset ``i % n``)."""
-        return [Windows(self.bounds[i::n]) for i in range(n)]
+        """``n`` interleaved subsets by seek (seek ``j`` goes to subset ``j % n``)."""
+        ids = list(dict.fromkeys(self.groups))
+        return [self.select_groups(ids[i::n]) for i in range(n)]
+
+    def every(self, k: int) -> "Windows":
+        """Every ``k``-th seek."""
+        return self.select_groups(list(dict.fromkeys(self.groups))[::k])
 
 
-def seek_windows(log: SeekLog, min_len: int = 32, max_len: int | None = None) -> Windows:
-    """One window per seek (target change to next target change) [samples].
-
-    Windows shorter than ``min_len`` are dropped; longer than ``max_len`` are split.
-    If the log has no target change, fixed windows of ``max_len`` (default 512) are used.
-    """
+def seek_windows(log: SeekLog, max_len_s: float | None = 0.010, min_len: int = 32) -> Windows:
+    """Windows per seek (target change to next target change), each split into pieces of at
+    most ``max_len_s`` [s] (re-anchored; the force noise integrated by the rigid body grows
+    like length^1.5), pieces shorter than ``min_len`` samples merged into the previous one.
+    Without target changes the log is cut into ``max_len_s`` pieces."""
     seeks = segment_seeks(log)
-    out = []
-    if seeks:
-        spans = [(s.start, s.end) for s in seeks]
-    else:
-        step = max_len or 512
-        spans = [(a, min(a + step, log.n)) for a in range(0, log.n, step)]
-    for a, b in spans:
-        if max_len:
-            while b - a > max_len + min_len:
-                out.append((a, a + max_len)); a += max_len
-        if b - a >= min_len:
-            out.append((int(a), int(b)))
-    return Windows(out)
+    spans = [(s.start, s.end) for s in seeks] or [(0, log.n)]
+    L = max(min_len, int(round((max_len_s or np.inf) * log.sample_rate_hz))) if max_len_s else None
+    bounds, groups = [], []
+    for g, (a, b) in enumerate(spans):
+        if b - a < min_len:
+            continue
+        cuts = list(range(a, b, L)) if L else [a]
+        if len(cuts) > 1 and b - cuts[-1] < min_len:
+            cuts.pop()
+        for i, c in enumerate(cuts):
+            bounds.append((int(c), int(cuts[i + 1] if i + 1 < len(cuts) else b)))
+            groups.append(g)
+    return Windows(bounds, groups)
 
 
 # ---------------------------------------------------------------- vectorised effects
@@ -351,8 +364,13 @@ def simulate(plant: ModalPlant, log: SeekLog, windows: Windows, passes: int | No
         if continuous:
             dp.reset(y[0], 0.0, current=u[0], t0=log.time_s[0])
             spans, starts = [(0, log.n)], {a for a, _ in windows.bounds}
-        else:
-            spans, starts = windows.bounds, set()
+        else:           # one span per run of contiguous windows (one seek), re-anchored inside
+            spans, starts = [], {a for a, _ in windows.bounds}
+            for a, b in windows.bounds:
+                if spans and spans[-1][1] == a:
+                    spans[-1] = (spans[-1][0], b)
+                else:
+                    spans.append((a, b))
         step, output = dp.step, dp.output
         cmd_r = np.full(log.n, np.nan) if record else None
         f_r = np.full(log.n, np.nan) if record else None
@@ -488,27 +506,35 @@ def spectra(e_full: np.ndarray, u: np.ndarray, windows: Windows, fs: float, nper
     return Spectra(np.fft.rfftfreq(nperseg, 1.0 / fs), See, Suu, Seu, coh, float(band), nseg)
 
 
-def detect_spindle(e_full: np.ndarray, windows: Windows, fs: float, fmin: float = 30.0,
-                   fmax: float = 300.0, harmonics: int = 4, pad: int = 8, top: int = 1) -> list:
-    """Spindle-frequency candidates [Hz] from the residual: the ``top`` local maxima of the
-    harmonic-sum periodogram (residual zero outside the windows) over ``[fmin, fmax]``.
+def detect_spindle(e_full: np.ndarray, windows: Windows, fs: float, fmin: float = 20.0,
+                   fmax: float = 400.0, harmonics: int = 4, pad: int = 8, top: int = 1,
+                   band_hz: float = 15.0) -> list:
+    """Spindle-frequency candidates [Hz] from the residual (zero outside the windows).
 
-    Returns ``[(f0, ratio)]``, best first; ratio = harmonic-sum power at f0 over its median
-    over the search range."""
+    Score ``S(f0) = sum_h (P(h f0) / M(h f0)) / h / sum_h (1/h)`` over ``h = 1..harmonics``,
+    ``P`` the periodogram and ``M`` its running median over ``band_hz`` (the local noise
+    level, so that the large low-frequency residual does not dominate); the ``1/h``
+    weights favour the fundamental over its sub-harmonics.  Returns the ``top`` local
+    maxima as ``[(f0, S)]``, best first (about 1 for noise)."""
+    from scipy.ndimage import median_filter
     x = np.zeros(len(e_full))
     idx = windows.index()
     x[idx] = e_full[idx]
     nfft = int(2 ** np.ceil(np.log2(len(x) * pad)))
     P = np.abs(np.fft.rfft(x, nfft)) ** 2
     fgrid = np.fft.rfftfreq(nfft, 1.0 / fs)
+    df = fgrid[1]
+    hi = min(len(P), int((harmonics * fmax + 2 * band_hz) / df) + 2)
+    M = median_filter(P[:hi], size=max(3, int(band_hz / df)) | 1, mode="nearest")
+    snr = P[:hi] / np.maximum(M, 1e-300)
     cand = fgrid[(fgrid >= fmin) & (fgrid <= min(fmax, fs / 2 / harmonics))]
     if len(cand) < 3:
         return []
-    hs = sum(np.interp(h * cand, fgrid, P) for h in range(1, harmonics + 1))
-    med = max(float(np.median(hs)), 1e-300)
-    pk = [i for i in range(1, len(hs) - 1) if hs[i] >= hs[i - 1] and hs[i] >= hs[i + 1]]
-    pk.sort(key=lambda i: -hs[i])
-    return [(float(cand[i]), float(hs[i] / med)) for i in pk[:top]]
+    w = 1.0 / np.arange(1, harmonics + 1)
+    score = sum(wh * np.interp(h * cand, fgrid[:hi], snr) for h, wh in zip(range(1, harmonics + 1), w)) / w.sum()
+    pk = [i for i in range(1, len(score) - 1) if score[i] >= score[i - 1] and score[i] >= score[i + 1]]
+    pk.sort(key=lambda i: -score[i])
+    return [(float(cand[i]), float(score[i])) for i in pk[:top]]
 
 
 def synchronous_average(e_full: np.ndarray, t: np.ndarray, windows: Windows, f0: float,

@@ -98,17 +98,17 @@ def cmd_identify(args) -> int:
 
     def pm(value, key, std, fmt):
         s = (std or {}).get(key)
-        return f"{value:{fmt}} ± {s:{fmt}}" if s is not None and s == s else f"{value:{fmt}}" + " " * 12
+        return f"{value:{fmt}} ± {s:.2g}" if s is not None and s == s else f"{value:{fmt}}"
     d = res.diagnostics
     print(f"{args.log}: {log.n} samples at {log.sample_rate_hz:g} Hz, {d.get('n_seeks')} seeks "
           f"({d.get('n_fit_seeks')} fitted, {d.get('n_heldout_seeks')} held out); method {res.method}")
     print(f"  k0    = {pm(p.k0, 'k0', sd, '.6g')} track/(A s^2)")
     print(f"  bias  = {pm(p.bias_a * 1e3, 'bias_a', {k: v * 1e3 for k, v in sd.items()}, '.4f')} mA")
     print(f"  delay = {pm(p.delay_s * 1e6, 'delay_s', {k: v * 1e6 for k, v in sd.items()}, '.3f')} us")
-    print(f"  {'#':>3} {'freq [Hz]':>22} {'zeta [-]':>22} {'gain [-]':>26}")
+    print(f"  {'#':>3}  {'freq [Hz]':<20} {'zeta [-]':<20} {'gain g [-]':<24}")
     for i, m in enumerate(p.modes, 1):
-        print(f"  {i:>3} {pm(m.freq_hz, 'freq_hz', m.std, '9.2f'):>22} {pm(m.zeta, 'zeta', m.std, '9.5f'):>22} "
-              f"{pm(m.gain, 'gain', m.std, '11.4e'):>26}")
+        print(f"  {i:>3}  {pm(m.freq_hz, 'freq_hz', m.std, '.2f'):<20} {pm(m.zeta, 'zeta', m.std, '.5f'):<20} "
+              f"{pm(m.gain, 'gain', m.std, '.4e'):<24}")
     if not p.modes:
         print("      (no significant mode)")
     fit, rig = res.fit_percent, res.fit_percent_rigid

@@ -38,7 +38,8 @@ class DemoError(ValueError):
 
 @dataclass
 class DemoConfig:
-    """What the demo does.  ``quick`` shrinks the design set and the sweep (for tests)."""
+    """What the demo does.  ``quick`` (for tests) uses the first 40 seeks of the log and shrinks
+    the design set and the sweep."""
 
     log: str | None = None
     outdir: str = "seekopt-out"
@@ -51,10 +52,18 @@ class DemoConfig:
     workers: int = 2
     html: bool = True
     designer: str = "ocp"
+    max_seeks: int | None = None
 
     def __post_init__(self):
         if self.quick:
             self.lengths, self.sweep_lengths, self.sweep_tpi_factors = (10, 1000), (10, 1000), (1.0, 3.0)
+            self.max_seeks = self.max_seeks or 40
+
+
+def first_seeks(log, n: int):
+    """The log up to the start of its ``n+1``-th seek (target change)."""
+    starts = np.nonzero(np.diff(log.target_track) != 0)[0] + 1
+    return log if len(starts) <= n else log.slice(0, int(starts[n]))
 
 
 def sample_log_path() -> Path:
@@ -207,9 +216,12 @@ def run_demo(cfg: DemoConfig) -> dict:
     with run.stage("read the seek log") as rec:
         path = Path(cfg.log) if cfg.log else sample_log_path()
         log = read_log(path)
+        if cfg.max_seeks:
+            log = first_seeks(log, cfg.max_seeks)
         if cfg.log is None:
             truth = _sample_truth()
-        rec[3] = f"{path.name}: {log.n} samples at {log.sample_rate_hz:g} Hz"
+        rec[3] = f"{path.name}: {log.n} samples at {log.sample_rate_hz:g} Hz" + \
+            (f" (first {cfg.max_seeks} seeks)" if cfg.max_seeks else "")
         if log.track_pitch_nm is None:
             raise DemoError(f"{path}: the log has no track_pitch_nm; the sweep needs the physical gain")
 

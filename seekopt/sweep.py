@@ -294,30 +294,9 @@ def _one_line(exc: BaseException) -> str:
 
 def evaluate(plant, controller, profile, settle, horizon_s, k0) -> dict:
     """:func:`seekopt.metrics.evaluate_profile` as a dict (the one simulator)."""
-    try:
-        from .metrics import evaluate_profile
-    except ImportError:  # PROVISIONAL until seekopt.metrics lands; same simulator
-        return _provisional_evaluate(plant, controller, profile, settle, horizon_s, k0)
+    from .metrics import evaluate_profile
     return evaluate_profile(plant, controller, profile, settle=settle, horizon_s=horizon_s,
                             k0_for_tbb=k0).to_dict()
-
-
-def _provisional_evaluate(plant, controller, profile, settle, horizon_s, k0):
-    from .simulate import simulate_2dof
-    fs = profile.sample_rate_hz
-    n = profile.n + int(round((horizon_s or 0.01) * fs))
-    u, r = profile.padded(n)
-    res = simulate_2dof(plant, controller, u, r, position0=0.0)
-    pes = res.true_position_track - profile.tracks
-    bad = np.nonzero(np.abs(pes) > settle)[0]
-    last = int(bad[-1]) + 1 if len(bad) else 0
-    after = pes[profile.seek_samples:]
-    return {"seek_time_s": profile.seek_time_s, "settle_time_s": last / fs,
-            "peak_pes_after_track": float(np.max(np.abs(after))),
-            "rms_pes_after_track": float(np.sqrt(np.mean(after ** 2))),
-            "peak_current_a": res.peak_current_a,
-            "ratio_tbb": (last / fs) / t_bang_bang(profile.tracks, k0, profile.imax_a),
-            "settled": last < n - 1}
 
 
 def compute_cell(payload: dict) -> dict:
