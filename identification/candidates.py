@@ -305,7 +305,7 @@ def _linear_fit(plant, data, cols, rigid=False, bounds=None, channel="force", wi
     return th[:nb], th[nb:], sse, wald(t, cov)
 
 
-def fit_friction(plant, data, max_sim_samples: int = 5000):
+def fit_friction(plant, data, max_sim_samples: int = 4000):
     v = data.v
     s = np.tanh(v / data.v_scale)
     (k, b), (c, vis), _, w = _linear_fit(plant, data, [-s, -v], bounds=([0, 0], [np.inf, np.inf]))
@@ -318,7 +318,7 @@ def fit_friction(plant, data, max_sim_samples: int = 5000):
                "Coulomb level and bias refined by simulation (the head sticks in dwell)")
 
 
-def sim_refine(plant: ModalPlant, data: Data, max_iter: int = 45) -> ModalPlant:
+def sim_refine(plant: ModalPlant, data: Data, max_iter: int = 35) -> ModalPlant:
     """Refine the last effect's (friction) Coulomb and viscous levels and ``bias_a`` by
     ``DiscretePlant`` simulation (Nelder-Mead on the output-error SSE: sticking makes it
     non-smooth)."""

@@ -86,7 +86,8 @@ class LoopResult:
 
     @property
     def accepted(self) -> list:
-        return [s.effect for s in self.steps if s.accepted]
+        """Accepted effects in order of first acceptance."""
+        return list(dict.fromkeys(s.effect for s in self.steps if s.accepted))
 
     def report(self) -> dict:
         plant = self.plant.to_dict()
@@ -344,6 +345,29 @@ def unexplained_lines(plant: ModalPlant, fdata: Data, vdata: Data, res: Residual
 
 
 # ------------------------------------------------------------------------------ loop
+def _backfit(name: str, plant: ModalPlant, fit: Data, val: Data, same: bool, cur_val: Residual,
+             it: int, why: str):
+    """Re-fit the (last) accepted effect ``name`` with the others in place; a Step if the
+    validation error drops, else None."""
+    idx = [i for i, e in enumerate(plant.effects) if e.name == name]
+    if not idx:
+        return None, None
+    base = plant.copy(effects=[e for i, e in enumerate(plant.effects) if i != idx[-1]])
+    try:
+        F = fit_candidate(name, base, fit.freeze(base, evaluate(base, fit, record=True)))
+    except (ValueError, np.linalg.LinAlgError, FloatingPointError):
+        return None, None
+    if F is None:
+        return None, None
+    rv = evaluate(F.plant, val, same, record=True)
+    if rv.rms >= cur_val.rms:
+        return None, None
+    st = Step(name, F.params, f"re-fitted {why} (backfitting)", cur_val.rms, rv.rms, True, it,
+              float("nan"), rv.fit_percent, F.plant)
+    return st, (evaluate(F.plant, fit, record=True), rv)
+
+
+
 def split_data(log: SeekLog, validation: SeekLog | None = None):
     """Fit and validation :class:`Data` (held-out odd seeks when no validation log)."""
     w = seek_windows(log)
@@ -409,14 +433,18 @@ def close_loop(log: SeekLog, model: ModalPlant, validation: SeekLog | None = Non
             if F is None:
                 say(f"  {name}: not applicable ({time.time() - tc:.1f} s)")
                 continue
-            rf, rv = evaluate(F.plant, fit, record=True), evaluate(F.plant, val, same, record=True)
-            drop = cur_bic - bic(rf.e, fit, F.n_params)
+            rv = evaluate(F.plant, val, same, record=True)
+            rf, drop = None, float("nan")
+            if rv.rms <= (1 - min_drop) * cur_val.rms:      # information criterion on the fit data
+                rf = evaluate(F.plant, fit, record=True)
+                drop = cur_bic - bic(rf.e, fit, F.n_params)
             st = Step(name, F.params, ev.get(name, ""), cur_val.rms, rv.rms, False, it, drop,
                       rv.fit_percent, F.plant)
             tried.append((st, rf, rv))
             say(f"  {name}: val rms {rv.rms:.4g} ({100 * (1 - rv.rms / cur_val.rms):+.1f} %), "
                 f"BIC drop {drop:.1f} ({time.time() - tc:.1f} s)")
-        ok = [t for t in tried if t[0].bic_drop > min_bic and t[0].rms_after <= (1 - min_drop) * cur_val.rms]
+        ok = [t for t in tried if t[1] is not None and t[0].bic_drop > min_bic
+              and t[0].rms_after <= (1 - min_drop) * cur_val.rms]
         steps += [t[0] for t in tried]
         if not ok:
             break
@@ -424,8 +452,14 @@ def close_loop(log: SeekLog, model: ModalPlant, validation: SeekLog | None = Non
         best.accepted = True
         accepted.append(best.effect)
         current, cur_fit, cur_val = best.plant, rf, rv
-        cur_bic = bic(rf.e, fit, 0)
         say(f"accepted {best.effect}: validation rms {rv.rms:.4g}")
+        for old in accepted[:-1] if len(accepted) > 1 else []:     # backfitting
+            st, fitted = _backfit(old, current, fit, val, same, cur_val, it, f"after accepting {best.effect}")
+            if st is not None:
+                steps.append(st)
+                current, cur_fit, cur_val = st.plant, fitted[0], fitted[1]
+                say(f"  re-fitted {old}: validation rms {cur_val.rms:.4g}")
+        cur_bic = bic(cur_fit.e, fit, 0)
     plant = current.copy()
     plant.meta = dict(plant.meta, loop={
         "simulation": SIMULATION_NOTE,

@@ -149,10 +149,11 @@ def fig6_settle_pes(log: SeekLog, ident: Identification, seeks=None, n_seeks: in
         ro = ident.diagnostics.get("runout")
         full = predict_segments(log, ident.plant, segs, init, runout=ro)
         rig = predict_segments(log, ident.plant.copy(modes=[]), segs, init, runout=ro)
+        pes = log.pes
         for ax, s, yh, yr in zip(axes[:, 0], seeks, full, rig):
             i = slice(s.settle, s.end)
             t = (np.arange(s.settle, s.end) - s.start) * log.dt * 1e3
-            ax.plot(t, log.pes[i], lw=1.0, label="measured")
+            ax.plot(t, pes[i], lw=1.0, label="measured")
             ax.plot(t, yh[s.settle - s.start:] - log.target_track[i], lw=1.0, label="estimated")
             ax.plot(t, yr[s.settle - s.start:] - log.target_track[i], ":", color="0.4", lw=0.9, label="rigid only")
             ax.set_ylabel("PES [track]")

@@ -171,7 +171,8 @@ def heldout_fit(log: SeekLog, plant: ModalPlant, seeks, init: str = "seek", runo
     segs = [(s.start, s.end) for s in seeks]
     pred = predict_segments(log, plant, segs, None if init == "seek" else [(s.settle, s.end) for s in seeks],
                             runout=runout)
-    y = np.concatenate([log.pes[s.settle:s.end] for s in seeks])
+    pes = log.pes                                   # (a property: compute once)
+    y = np.concatenate([pes[s.settle:s.end] for s in seeks])
     yh = np.concatenate([p[s.settle - s.start:] - log.target_track[s.settle:s.end] for p, s in zip(pred, seeks)])
     return float(100.0 * (1.0 - np.linalg.norm(y - yh) / np.linalg.norm(y - y.mean())))
 
@@ -294,7 +295,8 @@ def _identify_robust(log: SeekLog, fit_seeks, opts, timing) -> Identification:
     rf = rigid_fit(u, y, segs, dt)
     lap("rigid")
     # (a) pooled matrix pencil on the settle windows
-    wins = [log.pes[s.settle:s.end] for s in fit_seeks if s.settled]
+    pes = log.pes                                   # one array: slices of it share its memory
+    wins = [pes[s.settle:s.end] for s in fit_seeks if s.settled]
     try:
         poles, pdiag = matrix_pencil(wins, fs, freq_range=(lo, hi))
         diag["pencil_order"] = pdiag.order

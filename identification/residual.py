@@ -166,6 +166,51 @@ def _tf2(Phi: np.ndarray, c: np.ndarray, g: np.ndarray):
     return np.array([n1, n0]), np.array([1.0, -(p00 + p11), p00 * p11 - p01 * p10])
 
 
+_LM_CACHE: dict = {}
+
+
+def _linear_key(plant: ModalPlant) -> str:
+    """The linear structure of a plant, independent of ``k0`` and ``bias_a``."""
+    import json
+    d = plant.copy(k0=1.0, bias_a=0.0, effects=[e for e in plant.effects if e.kind == "structural"]).to_dict()
+    d.pop("meta", None); d.pop("std", None)
+    for m in d["modes"]:
+        m.pop("std", None)
+    return json.dumps(d, sort_keys=True)
+
+
+def _blocks(plant: ModalPlant, dt: float):
+    """Per-block filters of ``plant.discretize(dt)`` (``plant.k0`` = 1: ``Gamma`` and the
+    lag column of ``Phi`` scale with k0, ``Phi`` otherwise does not, so outputs scale
+    exactly with k0; the pivot's rest force is k0-normalised in the force input)."""
+    dp = plant.discretize(dt)
+    Phi, n = dp.Phi, dp.n
+    lag = n - 1 if any(isinstance(e, AmplifierLag) for e in plant.effects) else None
+    nb = (n - (1 if lag is not None else 0)) // 2
+    blocks = []
+    for i in range(nb):
+        s = slice(2 * i, 2 * i + 2)
+        P, c = Phi[s, s], dp.C[s]
+        bn, a = _tf2(P, c, dp.G_new[s])
+        bo, _ = _tf2(P, c, dp.G_old[s])
+        bf, _ = _tf2(P, c, dp.G_f[s])
+        bl = _tf2(P, c, Phi[s, lag])[0] if lag is not None else None
+        blocks.append(dict(P=P, a=a, b_cmd=np.array([0.0, bn[0], bn[1] + bo[0], bo[1]]),
+                           b_f=np.r_[0.0, bf], b_lag=None if bl is None else np.r_[0.0, bl]))
+    lag_b = lag_a = None
+    if lag is not None:
+        lag_b = np.array([0.0, dp.G_new[lag], dp.G_old[lag]])
+        lag_a = np.array([1.0, -Phi[lag, lag]])
+    off = Phi.copy()
+    for i in range(nb):
+        off[2 * i:2 * i + 2, 2 * i:2 * i + 2] = 0
+    if lag is not None:
+        off[:, lag] = 0
+    if np.abs(off).max() > 1e-9 * max(1.0, np.abs(Phi).max()):   # beyond expm round-off
+        raise ValueError("DiscretePlant is not block diagonal: unsupported structure")
+    return dp.m, lag, blocks, lag_b, lag_a
+
+
 class LinearModel:
     """The linear part of ``plant.discretize(dt)`` as parallel 2-state blocks + lfilter.
 
@@ -177,31 +222,15 @@ class LinearModel:
 
     def __init__(self, plant: ModalPlant, dt: float):
         self.plant, self.dt = plant, float(dt)
-        dp = plant.discretize(dt)
-        self.m = dp.m
-        Phi, n = dp.Phi, dp.n
-        self.lag = n - 1 if any(isinstance(e, AmplifierLag) for e in plant.effects) else None
-        nb = (n - (1 if self.lag is not None else 0)) // 2
-        self.blocks = []
-        for i in range(nb):
-            s = slice(2 * i, 2 * i + 2)
-            P, c = Phi[s, s], dp.C[s]
-            bn, a = _tf2(P, c, dp.G_new[s])
-            bo, _ = _tf2(P, c, dp.G_old[s])
-            bf, _ = _tf2(P, c, dp.G_f[s])
-            bl = _tf2(P, c, Phi[s, self.lag])[0] if self.lag is not None else None
-            self.blocks.append(dict(P=P, a=a, b_cmd=np.array([0.0, bn[0], bn[1] + bo[0], bo[1]]),
-                                    b_f=np.r_[0.0, bf], b_lag=None if bl is None else np.r_[0.0, bl]))
-        if self.lag is not None:
-            self.lag_b = np.array([0.0, dp.G_new[self.lag], dp.G_old[self.lag]])
-            self.lag_a = np.array([1.0, -Phi[self.lag, self.lag]])
-        off = Phi.copy()
-        for i in range(nb):
-            off[2 * i:2 * i + 2, 2 * i:2 * i + 2] = 0
-        if self.lag is not None:
-            off[:, self.lag] = 0
-        if np.abs(off).max() > 1e-9 * max(1.0, np.abs(Phi).max()):   # expm round-off only
-            raise ValueError("DiscretePlant is not block diagonal: unsupported structure")
+        key = (_linear_key(plant), self.dt)
+        if key not in _LM_CACHE:
+            if len(_LM_CACHE) > 256:
+                _LM_CACHE.clear()
+            _LM_CACHE[key] = _blocks(plant.copy(k0=1.0), self.dt)
+        self.m, self.lag, blocks, self.lag_b, self.lag_a = _LM_CACHE[key]
+        k0 = float(plant.k0)    # every response is proportional to k0 (see _blocks)
+        self.blocks = [dict(b, b_cmd=b["b_cmd"] * k0, b_f=b["b_f"] * k0,
+                            b_lag=None if b["b_lag"] is None else b["b_lag"] * k0) for b in blocks]
 
     def free_basis(self, length: int) -> np.ndarray:
         """``(length, 2)`` rigid-block output from unit initial position / velocity."""

@@ -127,11 +127,52 @@ def cmd_identify(args) -> int:
 
 
 def cmd_design(args) -> int:
-    raise NotImplementedError("design: not wired yet")
+    """``seekopt design``: minimum seek-settle-time profile -> Profile CSV (see :mod:`seekopt.ocp`)."""
+    import math
+    from .ocp import DesignError, RobustSpec, SeekDesigner
+    plant, controller = _load_plant(args.plant), _load_controller(args.controller)
+    for name, v in (("--imax", args.imax), ("--settle", args.settle)):
+        if not (math.isfinite(v) and v > 0):
+            raise UsageError(f"{name} must be a positive number (got {v})")
+    if not math.isfinite(args.tracks) or args.tracks == 0:
+        raise UsageError(f"--tracks must be a non-zero number (got {args.tracks})")
+    try:
+        robust = None if args.robust is None else RobustSpec.from_string(args.robust)
+    except ValueError as exc:
+        raise UsageError(f"--robust: {exc}") from None
+    try:
+        res = SeekDesigner(plant, controller, args.imax, args.settle, robust).design(args.tracks)
+    except DesignError as exc:
+        print(f"seekopt design: solver failure: {str(exc).splitlines()[0]}", file=sys.stderr)
+        return 1
+    prof = res.profile
+    prof.meta.update(plant_file=Path(args.plant).name, controller_name=controller.name)
+    prof.to_csv(args.output)
+    m = res.metrics
+    print(f"wrote {args.output}: {prof.n} samples; {args.tracks:g} tracks, seek {m.seek_time_s * 1e3:.3f} ms, "
+          f"seek-settle {m.settle_time_s * 1e3:.3f} ms ({m.ratio_tbb:.2f} T_bb) on the design plant, "
+          f"peak current {m.peak_current_a:.3f} A; {res.n_solves} QPs ({res.solver}) in {res.solve_time_s:.3f} s")
+    return 0
 
 
 def cmd_bench(args) -> int:
-    raise NotImplementedError("bench: not wired yet")
+    """``seekopt bench``: sine / windowed sine / optimal table (+ Fig. 9/10-style plots); see :mod:`seekopt.bench`."""
+    import math
+    from .bench import format_table, run_bench
+    plant, controller = _load_plant(args.plant), _load_controller(args.controller)
+    truth = _load_plant(args.truth) if args.truth else None
+    for name, v in (("--imax", args.imax), ("--settle", args.settle)):
+        if not (math.isfinite(v) and v > 0):
+            raise UsageError(f"{name} must be a positive number (got {v})")
+    if not math.isfinite(args.tracks) or args.tracks == 0:
+        raise UsageError(f"--tracks must be a non-zero number (got {args.tracks})")
+    res = run_bench(plant, controller, args.tracks, args.imax, args.settle, truth=truth, figures=args.figures)
+    print(f"design plant {Path(args.plant).name}, evaluated on "
+          f"{Path(args.truth).name if args.truth else 'the design plant'}")
+    print(format_table(res))
+    for f in res.figures:
+        print(f"figure: {f}")
+    return 0
 
 
 def cmd_loop(args) -> int:

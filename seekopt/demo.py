@@ -302,41 +302,27 @@ def _plot_frf(plant, truth, path):
     return __import__("seekopt.report", fromlist=["_save"])._save(fig, path)
 
 
-def _plot_traces(plant, controller, cells, tpi, tracks, imax, settle, path):
-    """PES and current vs time for the three profiles of one seek (the one simulator)."""
-    from . import report
+def _plot_traces(plant, truth, controller, cells, tpi, tracks, imax, settle, folder):
+    """Fig. 9/10-style traces (:func:`seekopt.bench.plot_bench`) of the three profiles of one seek,
+    played on the truth plant when known, else on the identified plant."""
+    from .bench import BenchResult, BenchRow, plot_bench
     from .profiles import Profile
-    from .simulate import simulate_2dof
-    from .sweep import baseline_profile, cell_key
-    plt = report._plt()
+    from .sweep import baseline_profile, cell_key, evaluate
+    evalp = truth or plant
     c = cells.get(cell_key(tpi, tracks))
-    profs = []
+    profs = [(k, baseline_profile(plant, controller.sample_rate_hz, k, tracks, imax, settle))
+             for k in ("sine", "windowed_sine")]
     if c and c.get("optimal_profile"):
         profs.append(("optimal", Profile.from_dict(c["optimal_profile"])))
-    for kind in ("sine", "windowed_sine"):
-        profs.append((kind, baseline_profile(plant, controller.sample_rate_hz, kind, tracks, imax, settle)))
-    fs = controller.sample_rate_hz
-    n = max(p.n for _, p in profs) + int(0.004 * fs)
-    fig, (a1, a2) = plt.subplots(2, 1, figsize=(7, 5.5), sharex=True)
+    rows = []
     for kind, p in profs:
-        u, r = p.padded(n)
-        res = simulate_2dof(plant, controller, u, r, position0=0.0)
-        col, ls, _ = report._KIND_STYLE[kind]
-        t = 1e3 * np.arange(n) / fs
-        a1.plot(t, res.true_position_track - tracks, color=col, ls=ls, label=report.KIND_LABELS[kind])
-        a2.plot(t, res.current_a, color=col, ls=ls)
-    for s in (settle, -settle):
-        a1.axhline(s, color="0.5", lw=0.7)
-    a1.set_ylim(-20 * settle, 20 * settle)
-    a1.set_ylabel("position - target [track]")
-    a1.set_title(f"{tracks:g}-track seek on the identified plant (grey: ±{settle:g} track band)", fontsize=9)
-    a1.legend(fontsize=8)
-    a2.set_ylabel("current [A]")
-    a2.set_xlabel("time from seek start [ms]")
-    for a in (a1, a2):
-        a.grid(True, alpha=0.3)
-    fig.tight_layout()
-    return report._save(fig, path)
+        m = evaluate(evalp, controller, p, settle, None, plant.k0)
+        rows.append(BenchRow(kind, kind, m["seek_time_s"], m["settle_time_s"], m["peak_pes_after_track"],
+                             m["rms_pes_after_track"], m["peak_current_a"], m["ratio_tbb"],
+                             settled=m["settled"], profile=p))
+    from .profiles import t_bang_bang
+    res = BenchResult(float(tracks), imax, settle, t_bang_bang(tracks, plant.k0, imax), rows)
+    return plot_bench(res, evalp, controller, Path(folder))
 
 
 def _write_report(cfg, out, figs, log, plant, truth, id_notes, loop_summary, bench, truth_rows,
@@ -364,13 +350,15 @@ def _write_report(cfg, out, figs, log, plant, truth, id_notes, loop_summary, ben
                      "available in this installation.", []))
     summary = _summary_table(bench, truth_rows)
     cells = load_cells(out / "sweep")
-    L = sorted(cfg.lengths)[len(cfg.lengths) // 2]
-    trace = _plot_traces(plant, controller, cells, float(bench["tpi"].iloc[0]), L,
-                         cfg.imax, cfg.settle, figs / f"seek_{L:g}_tracks.png")
+    L = 1000 if 1000 in cfg.lengths else sorted(cfg.lengths)[len(cfg.lengths) // 2]
+    trace = _plot_traces(plant, truth, controller, cells, float(bench["tpi"].iloc[0]), L,
+                         cfg.imax, cfg.settle, figs)
     sections.append(("Bench: optimal vs sine and windowed sine",
-                     "Seek-settle time (seek start until the error stays within the band) on the "
-                     "identified plant" + (" and on the truth plant" if truth_rows else "") + ".\n\n"
-                     + report.markdown_table(summary, fmt=".3g"), [trace]))
+                     "Seek-settle time [ms] (seek start until the error stays within the band) on the "
+                     "identified plant" + (" and on the truth plant of the synthetic drive" if truth_rows else "")
+                     + "; – : not settled or failed.\n\n" + report.markdown_table(summary, fmt=".3g")
+                     + f"\nTraces of the {L:g}-track seek on the "
+                     + ("truth" if truth is not None else "identified") + " plant:\n", [trace]))
     sv = report.savings_table(sweep_df)
     sections.append(("TPI sweep", "The identified plant re-expressed per TPI (physical gain kept, "
                      "controller gain scaled with the track pitch, settle band in tracks). "

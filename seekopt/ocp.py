@@ -283,6 +283,10 @@ class SeekDesigner:
         data = qp.data(K, n, None if epigraph else beta, self.gamma, hf_tol, self.slew)
         x0 = None if warm is None else warm
         sol = qp.solver.solve(*data, x0=x0)
+        if sol.success:     # never trust a status alone: re-check the answer against the data
+            viol = qp.violation(sol.x, K, *data[3:])
+            if viol > 1e-5:
+                sol.success, sol.status = False, f"{sol.status}; constraint violation {viol:.2g}"
         stats["n"] += 1
         stats["t"] += sol.solve_time_s
         stats["status"] = sol.status
@@ -292,17 +296,18 @@ class SeekDesigner:
         """Fewest seek samples for which currents, guard and rest-to-rest can be met (no band)."""
         K = float(tracks)
         stats = {"n": 0, "t": 0.0, "status": ""}
+        epi = self.objective_kind == "worst"          # the structure objective (a) uses
         lo = max(int(math.floor(t_bang_bang(K, self.plant.k0, self.imax) * self.fs)) - 1, 0)
         for c in self._classes(lo + 1):
-            qp = self._structure(c, False)
-            if self._solve(qp, K, c, None, stats).success:
+            qp = self._structure(c, epi)
+            if self._solve(qp, K, c, None, stats, epigraph=epi).success:
                 hi = c
                 break
         else:
             return -1
         while hi - lo > 1:
             mid = (lo + hi) // 2
-            if self._solve(qp, K, mid, None, stats).success:
+            if self._solve(qp, K, mid, None, stats, epigraph=epi).success:
                 hi = mid
             else:
                 lo = mid
@@ -337,6 +342,9 @@ class SeekDesigner:
             qp = self._structure(self._classes(N)[0], epi)
             sol = self._solve(qp, K, N, None, stats, epigraph=epi)
             if not sol.success:
+                if not sol.infeasible:
+                    raise DesignError(f"QP solver {self.solver_name} failed ({sol.status}) for {K:g} tracks "
+                                      f"in {N} samples")
                 n_min = self.shortest_feasible(K)
                 if n_min < 0 or N < n_min:
                     raise self._infeasible(K, N)
@@ -350,6 +358,9 @@ class SeekDesigner:
             sol = self._solve(qp, K, c, self.beta, stats)
             if sol.success:
                 break
+            if not sol.infeasible:
+                raise DesignError(f"QP solver {self.solver_name} failed ({sol.status}) for {K:g} tracks "
+                                  f"in {c} samples")
             lo = max(lo, c)
         else:
             raise DesignInfeasible(f"seek of {K:g} tracks cannot settle within {self.max_samples} samples "
@@ -360,7 +371,7 @@ class SeekDesigner:
             s = self._solve(qp, K, mid, self.beta, stats, warm=best.x)
             if s.success:
                 hi, best = mid, s
-            else:
+            else:           # infeasible, or a failed solve: either way not a design at ``mid``
                 lo = mid
         # verify by simulation; step up on failure (tail beyond the QP horizon, row thinning)
         for N in range(hi, c + 1):
@@ -378,8 +389,15 @@ class SeekDesigner:
     def _finish(self, qp, sol, K, N, stats, objective, strict) -> DesignResult:
         u, r = qp.unpack(sol.x, K, N)
         M = rigid_endpoint_matrix(N, self.plant.k0, 1.0 / self.fs)
-        miss = np.array([K, 0.0]) - M @ u
-        u = u + M.T @ np.linalg.solve(M @ M.T, miss)            # exact rest-to-rest (tiny correction)
+        u = np.clip(u, -self.imax, self.imax)
+        for _ in range(3):      # exact rest-to-rest: least-norm correction on the unsaturated samples
+            miss = np.array([K, 0.0]) - M @ u
+            free = np.abs(u) < self.imax * (1 - 1e-9)
+            if np.max(np.abs(miss)) <= 1e-9 or free.sum() < 2:
+                break
+            Mf = M[:, free]
+            u[free] += Mf.T @ np.linalg.solve(Mf @ Mf.T, miss)
+            u = np.clip(u, -self.imax, self.imax)
         if np.max(np.abs(M @ u - [K, 0.0])) > 1e-6 or not np.all(np.isfinite(u)):
             raise DesignError(f"design misses rest at {K:g} tracks")
         meta = {"plant_hash": self.plant.hash(), "controller_hash": self.controller.hash(),
@@ -388,8 +406,8 @@ class SeekDesigner:
                 "band_margin": self.beta, "current_margin": self.gamma, "design_settle_samples": N}
         if self.ignored_effects:
             meta["effects_not_in_design"] = ";".join(self.ignored_effects)
-        if r is not None:
-            prof = Profile(u, r, self.fs, K, self.imax, self.settle, "optimal", N, meta)
+        if r is not None:   # jointly designed reference; one closing sample shows the hold (u = 0, r = K)
+            prof = Profile(np.r_[u, 0.0], np.r_[r, K], self.fs, K, self.imax, self.settle, "optimal", N, meta)
         else:
             model = self.plant if self.reference == "model" else ModalPlant(
                 k0=self.plant.k0, delay_s=self.plant.total_delay_s)

@@ -157,6 +157,12 @@ class QPSolution:
     solve_time_s: float
     cpu_time_s: float
 
+    @property
+    def infeasible(self) -> bool:
+        """The solver proved the problem infeasible (daqp exit flag -1, or 'infeasible' in the status)."""
+        st = self.status.lower()
+        return (not self.success) and (st == "-1" or ("infeas" in st and "violation" not in st))
+
 
 def _nan_safe(a, n):
     a = np.asarray(a, dtype=float).ravel()
@@ -450,6 +456,18 @@ class SeekQP:
         if self.nt:
             lbx[-1], ubx[-1] = 0.0, np.inf
         return H, g, A, lba, uba, lbx, ubx
+
+    def violation(self, x: np.ndarray, K: float, lba, uba, lbx, ubx) -> float:
+        """Largest constraint violation of ``x`` relative to the size of the terms summed in each
+        row (``max(1, sum_j |a_ij x_j|)``: the cancellation level) -- re-checks a solver's answer."""
+        if not np.all(np.isfinite(x)):
+            return float("inf")
+        A = self.A0 + abs(K) * self.A1
+        ax = A @ x
+        scale = np.maximum(1.0, np.abs(A) @ np.abs(x))
+        v = np.concatenate([(lba - ax) / scale, (ax - uba) / scale, lbx - x, x - ubx])
+        v = v[np.isfinite(v)]
+        return float(max(np.max(v), 0.0)) if v.size else 0.0
 
     def unpack(self, x: np.ndarray, K: float, nseek: int):
         """``(u_ff [A], r [track, relative] or None)`` over ``nseek`` samples."""

@@ -56,7 +56,7 @@ import numpy as np
 from identification.plant import TRACK_PITCH_PER_TPI_NM, ModalPlant
 
 from .controller import Controller
-from .profiles import finish_profile, shortest_baseline, t_bang_bang
+from .profiles import t_bang_bang
 
 __all__ = ["SweepError", "SweepConfig", "SweepSummary", "parse_tpi", "parse_tracks", "cell_key",
            "compute_cell", "run_sweep", "evaluate", "make_pool", "assemble", "load_cells",
@@ -248,7 +248,7 @@ class BaselineDesigner:
         prof = baseline_profile(self.plant, self.fs, "bang_bang", tracks, self.imax, self.settle)
         from types import SimpleNamespace
         return SimpleNamespace(profile=prof, metrics=None, status="baseline", solver="bang_bang",
-                               objective=float(prof.seek_time_s), solve_time_s=time.perf_counter() - t0)
+                               objective="shortest_bang_bang", solve_time_s=time.perf_counter() - t0)
 
 
 def _designer_factory(spec: str):
@@ -263,27 +263,31 @@ def _designer_factory(spec: str):
     return getattr(importlib.import_module(mod), attr)
 
 
-def baseline_profile(plant: ModalPlant, fs: float, kind: str, tracks: float, imax: float, settle: float):
-    """Shortest ``kind`` baseline within ``imax`` with the rigid-model 2DOF reference (paper, Fig. 7)."""
-    u = shortest_baseline(kind, tracks, plant.k0, fs, imax)
-    rigid = ModalPlant(k0=plant.k0, delay_s=plant.total_delay_s)
-    return finish_profile(u, tracks, fs, imax, rigid, kind, settle_track=settle,
-                          meta={"plant_hash": plant.hash()})
+def baseline_profile(plant: ModalPlant, fs: float, kind: str, tracks: float, imax: float, settle: float = 0.1):
+    """The bench's baseline (:func:`seekopt.bench.baseline_profile`: shortest ``kind`` within ``imax``,
+    rigid-model 2DOF reference as in the paper), so sweep and bench compare the same profiles."""
+    from .bench import baseline_profile as _baseline
+    return _baseline(plant, fs, kind, tracks, imax, settle)
 
 
 # ------------------------------------------------------------------ one cell (runs in workers)
 _LOCK = threading.Lock()          # Ipopt/MUMPS is not thread-safe: one cell at a time per process
-_CACHE: OrderedDict = OrderedDict()
-_CACHE_SIZE = 4
+_OBJECTS: dict = {}                # per process: plants and controllers per (config, TPI)
+_DESIGNERS: OrderedDict = OrderedDict()   # per process: the designer of the last few TPIs
+_N_DESIGNERS = 3
 
 
 def _cached(key, make):
-    if key in _CACHE:
-        _CACHE.move_to_end(key)
-        return _CACHE[key]
-    value = _CACHE[key] = make()
-    while len(_CACHE) > _CACHE_SIZE:
-        _CACHE.popitem(last=False)
+    if key[0] != "designer":
+        if key not in _OBJECTS:
+            _OBJECTS[key] = make()
+        return _OBJECTS[key]
+    if key in _DESIGNERS:
+        _DESIGNERS.move_to_end(key)
+        return _DESIGNERS[key]
+    value = _DESIGNERS[key] = make()
+    while len(_DESIGNERS) > _N_DESIGNERS:
+        _DESIGNERS.popitem(last=False)
     return value
 
 
@@ -340,7 +344,7 @@ def compute_cell(payload: dict) -> dict:
                     res = designer.design(tracks)
                     prof = res.profile
                     row.update(design_status=str(res.status), solver=str(res.solver),
-                               objective=_f(res.objective), solve_time_s=_f(res.solve_time_s))
+                               objective=str(res.objective), solve_time_s=_f(res.solve_time_s))
                     opt = prof
                 else:
                     prof = baseline_profile(plant, fs, kind, tracks, imax, settle)
@@ -369,14 +373,12 @@ def _f(x):
 def _fsync_dir(path: Path) -> None:
     try:
         fd = os.open(path, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
     except OSError:
         pass
-    finally:
-        os.close(fd)
 
 
 def write_atomic(path: Path, text: str) -> None:

@@ -1,0 +1,138 @@
+"""Study: solve time per design with solver reuse vs a naive rebuild per design; QP plugins vs Ipopt.
+
+Run::
+
+    python studies/solver_reuse.py [--repeat 5]
+
+1. Reuse: one :class:`seekopt.ocp.SeekDesigner` (closed-loop maps, condensed matrices converted to
+   ``casadi.DM`` and the ``casadi.conic`` solver built once per seek-size class) designs a list of
+   seeks; naive: a new designer (everything rebuilt) per seek.  Same answers, wall time per design.
+2. Solvers on the same condensed QP (one bisection step of the K = 200 design, and the N = 120
+   min-residual QP of a 1000-track seek): ``casadi.conic`` plugins daqp, qpoases, highs, osqp,
+   proxqp and the ``Opti`` + Ipopt path (``hessian_constant``/``jac_*_constant`` = yes,
+   ``opti.to_function``), solver built once, median of ``--repeat`` solves; also Opti rebuilt per
+   solve.
+
+CPU times are process times (the machine is shared; wall times are noisier).  Writes the section
+between the ``solver_reuse`` markers of ``docs/results_design.md``.
+"""
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from seekopt import qp as qpmod  # noqa: E402
+from seekopt.bench import perturbed_plant  # noqa: E402
+from seekopt.controller import Controller  # noqa: E402
+from seekopt.ocp import SeekDesigner  # noqa: E402
+from seekopt.presets import default_truth_plant  # noqa: E402
+
+sys.path.insert(0, str(ROOT / "studies"))
+from paper_seek_settling import write_section  # noqa: E402
+
+IMAX = 0.3
+TRACKS = (30.0, 40.0, 50.0, 60.0, 80.0, 100.0, 150.0, 200.0)
+
+
+def timed(f):
+    t0, c0 = time.perf_counter(), time.process_time()
+    out = f()
+    return out, time.perf_counter() - t0, time.process_time() - c0
+
+
+def reuse_vs_rebuild(plant, ctrl, robust=None):
+    d = SeekDesigner(plant, ctrl, IMAX, robust=robust)
+    b0 = sum(qpmod.BUILD_COUNT.values())
+    reuse, rebuild = [], []
+    for K in TRACKS:
+        r, w, c = timed(lambda: d.design(K))
+        reuse.append((K, w, c, r.solve_time_s, r.settle_samples))
+    builds_reuse = sum(qpmod.BUILD_COUNT.values()) - b0
+    b0 = sum(qpmod.BUILD_COUNT.values())
+    for K in TRACKS:
+        r, w, c = timed(lambda: SeekDesigner(plant, ctrl, IMAX, robust=robust).design(K))
+        rebuild.append((K, w, c, r.solve_time_s, r.settle_samples))
+    builds_rebuild = sum(qpmod.BUILD_COUNT.values()) - b0
+    return reuse, rebuild, builds_reuse, builds_rebuild
+
+
+def solver_table(plant, ctrl, K, N, nclass, beta, epigraph, repeat, robust=None):
+    d = SeekDesigner(plant, ctrl, IMAX, robust=robust)
+    s = d._structure(nclass, epigraph)          # the designer's own condensed problem
+    data = s.data(K, N, None if epigraph else beta, d.gamma, d.hf_tol, None)
+    rows = []
+    ref = None
+    for name in ("daqp", "qpoases", "highs", "osqp", "proxqp", "ipopt"):
+        try:
+            solver, tb, _ = timed(lambda: qpmod.make_qp_solver(s.n, s.m, name))
+        except Exception as exc:  # noqa: BLE001
+            rows.append((name, f"build failed: {exc}"[:60], *[float("nan")] * 5))
+            continue
+        walls, cpus, sol = [], [], None
+        for _ in range(repeat):
+            sol = solver.solve(*data)
+            walls.append(sol.solve_time_s); cpus.append(sol.cpu_time_s)
+        viol = s.violation(sol.x, K, *data[3:]) if sol.success else float("nan")
+        obj = float(0.5 * sol.x @ (np.array(data[0]) @ sol.x) + np.asarray(data[1]) @ sol.x) if sol.success else float("nan")
+        if name == "daqp" and sol.success:
+            ref = sol.x
+        dx = float(np.max(np.abs(sol.x - ref))) if (ref is not None and sol.success) else float("nan")
+        rows.append((name, sol.status, tb, statistics.median(walls), statistics.median(cpus), viol, obj, dx))
+    # Opti + Ipopt rebuilt for every solve (no reuse)
+    walls = []
+    for _ in range(max(1, repeat // 2)):
+        (_, w, _) = timed(lambda: qpmod.IpoptQP(s.n, s.m).solve(*data))
+        walls.append(w)
+    return s, rows, statistics.median(walls)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeat", type=int, default=5)
+    a = ap.parse_args(argv)
+    truth, ctrl = default_truth_plant(), Controller.nss()
+    plant = perturbed_plant(truth, ctrl.sample_rate_hz)
+    out = ["## Solver reuse and QP solvers (`studies/solver_reuse.py`)", "",
+           f"Design plant: perturbed copy of the truth; NSS controller; Imax {IMAX} A; seeks {', '.join(f'{k:g}' for k in TRACKS)} tracks. "
+           "Wall and CPU (process) time per design, including the bisection's QP solves and the simulator check.", ""]
+    for label, robust in (("nominal", None), ("robust freq=3,gain=25,delay=3e-6,n=4", "freq=3,zeta=30,gain=25,delay=3e-6,n=4")):
+        reuse, rebuild, br, bn = reuse_vs_rebuild(plant, ctrl, robust)
+        wr, wn = sum(r[1] for r in reuse), sum(r[1] for r in rebuild)
+        cr, cn = sum(r[2] for r in reuse), sum(r[2] for r in rebuild)
+        same = all(a[4] == b[4] for a, b in zip(reuse, rebuild))
+        out += [f"### Reuse vs rebuild ({label})", "",
+                "| K | reuse wall s | reuse QP s | rebuild wall s | rebuild QP s | N_s |", "|---|---|---|---|---|---|"]
+        out += [f"| {a[0]:g} | {a[1]:.3f} | {a[3]:.3f} | {b[1]:.3f} | {b[3]:.3f} | {a[4]} |" for a, b in zip(reuse, rebuild)]
+        out += ["", f"Total: reuse {wr:.2f} s wall / {cr:.2f} s CPU with {br} solver builds; rebuild {wn:.2f} s wall / "
+                f"{cn:.2f} s CPU with {bn} builds: **rebuild / reuse = {wn / wr:.1f}x wall, {cn / cr:.1f}x CPU**; "
+                f"identical seek-settle samples: {same}.", ""]
+        print("\n".join(out[-(len(TRACKS) + 6):]), flush=True)
+    for title, K, N, ncls, epi, robust in (("K = 200, one bisection step (band QP, N = 40, class 48), nominal", 200.0, 40, 48, False, None),
+                                           ("K = 200, band QP N = 40, robust set of 11 plants", 200.0, 40, 48, False, "freq=3,zeta=30,gain=25,delay=3e-6,n=4"),
+                                           ("K = 1000, min-residual (epigraph) QP, N = 120, nominal", 1000.0, 120, 128, True, None)):
+        s, rows, rebuild_w = solver_table(plant, ctrl, K, N, ncls, 0.7, epi, a.repeat, robust)
+        out += [f"### QP solvers: {title}", "", f"Dense QP: n = {s.n} variables, m = {s.m} rows.", "",
+                "| solver | status | build s | solve wall ms (median) | solve CPU ms | max rel. violation | objective | max abs dx vs daqp |",
+                "|---|---|---|---|---|---|---|---|"]
+        for r in rows:
+            out.append(f"| {r[0]} | {r[1]} | {r[2]:.3f} | {r[3] * 1e3:.1f} | {r[4] * 1e3:.1f} | {r[5]:.1e} | {r[6]:.6g} | {r[7]:.1e} |")
+        d = {r[0]: r for r in rows}
+        if "daqp" in d and "ipopt" in d:
+            out += ["", f"Ipopt (to_function, reused) / daqp solve wall time: {d['ipopt'][3] / d['daqp'][3]:.1f}x; "
+                    f"Opti + Ipopt rebuilt per solve: {rebuild_w * 1e3:.0f} ms.", ""]
+        print("\n".join(out[-(len(rows) + 8):]), flush=True)
+    write_section("solver_reuse", "\n".join(out))
+    print("wrote docs/results_design.md")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

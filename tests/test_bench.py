@@ -1,0 +1,93 @@
+"""Bench (sine / windowed sine / optimal) and the ``design`` / ``bench`` commands."""
+import numpy as np
+import pytest
+
+from identification.plant import ModalPlant, Mode
+from seekopt.bench import format_table, mode_response, perturbed_plant, run_bench
+from seekopt.cli import main
+from seekopt.controller import Controller
+from seekopt.presets import default_truth_plant
+from seekopt.profiles import Profile, rigid_endpoint_matrix
+
+FS = 26400.0
+
+
+@pytest.fixture(scope="module")
+def plants(tmp_path_factory):
+    d = tmp_path_factory.mktemp("plants")
+    truth = default_truth_plant()
+    design = perturbed_plant(truth, FS)
+    truth.to_json(d / "truth.json")
+    design.to_json(d / "design.json")
+    return truth, design, d
+
+
+def test_perturbed_plant(plants):
+    truth, design, _ = plants
+    assert max(m.freq_hz for m in design.modes) < 0.45 * FS
+    assert len(design.modes) == sum(m.freq_hz < 0.45 * FS for m in truth.modes)
+    r = [d.freq_hz / t.freq_hz for d, t in zip(design.modes, truth.modes)]
+    assert np.allclose(np.abs(np.array(r) - 1), 0.02)
+    assert design.delay_s == pytest.approx(truth.delay_s + 3e-6)
+
+
+def test_mode_response_matches_closed_form():
+    """Undamped mode, one held current sample from rest: x(t) = k0 g u (1 - cos w t)/w^2 during the hold."""
+    k0, f = 4e9, 1738.0
+    mode = Mode(f, 0.0, 0.02)
+    p = ModalPlant(k0=k0)
+    u = np.r_[0.1, np.zeros(30)]
+    x = mode_response(p, mode, u, FS)
+    w = 2 * np.pi * f
+    t1 = 1 / FS
+    amp = k0 * 0.02 * 0.1 / w ** 2
+    # after the pulse: x(t) = amp [cos(w (t - t1)) - cos(w t)]
+    k = np.arange(2, 31)
+    assert np.allclose(x[k], amp * (np.cos(w * (k / FS - t1)) - np.cos(w * k / FS)), rtol=1e-9, atol=1e-12)
+
+
+def test_run_bench_table_and_figure(plants, tmp_path):
+    truth, design, _ = plants
+    res = run_bench(design, Controller.nss(), 10.0, 0.3, truth=truth, robust=None, figures=tmp_path)
+    labels = [r.label for r in res.rows]
+    assert labels == ["sine", "windowed_sine", "optimal"]
+    best = min(res.row("sine").settle_time_s, res.row("windowed_sine").settle_time_s)
+    assert res.row("optimal").ratio_best_baseline == pytest.approx(res.row("optimal").settle_time_s / best)
+    text = format_table(res)
+    assert "windowed_sine" in text and "T_bb" in text
+    assert res.figures and res.figures[0].exists()
+
+
+def test_cli_design_writes_profile(plants, tmp_path, capsys):
+    truth, design, d = plants
+    out = tmp_path / "p.csv"
+    assert main(["design", "--plant", str(d / "design.json"), "--tracks", "50", "--imax", "0.3",
+                 "-o", str(out)]) == 0
+    prof = Profile.from_csv(out)
+    head = out.read_text()
+    for key in ("sample_rate_hz", "tracks", "imax_a", "settle_track", "plant_hash", "controller_hash",
+                "tool_version", "seek_samples"):
+        assert f"# {key}:" in head
+    assert prof.meta["plant_hash"] == design.hash()
+    pos, vel = rigid_endpoint_matrix(prof.n, design.k0, 1 / FS) @ prof.current_a
+    assert abs(pos - 50) <= 1e-6 and abs(vel) <= 1e-6 and np.max(np.abs(prof.current_a)) <= 0.3
+    assert "seek-settle" in capsys.readouterr().out
+
+
+def test_cli_design_errors(plants, tmp_path, capsys):
+    truth, design, d = plants
+    out = tmp_path / "p.csv"
+    assert main(["design", "--plant", str(d / "design.json"), "--tracks", "50", "--imax", "0.3",
+                 "--robust", "speed=3", "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--robust" in err
+    assert main(["design", "--plant", str(d / "nope.json"), "--tracks", "50", "--imax", "0.3", "-o", str(out)]) == 2
+    assert not out.exists()
+
+
+def test_cli_bench_prints_table(plants, tmp_path, capsys):
+    truth, design, d = plants
+    assert main(["bench", "--plant", str(d / "design.json"), "--truth", str(d / "truth.json"),
+                 "--tracks", "5", "--imax", "0.3", "--figures", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "optimal robust" in out and "sine" in out and "bench_k5.png" in out

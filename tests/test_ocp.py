@@ -1,0 +1,211 @@
+"""Optimal seek design: rest-to-rest, current limit, infeasibility, solver reuse, failure handling.
+
+Fast tests design on a perturbed copy of the truth (modes +-2 % / +-20 %, delay +3 us, no modes
+above 0.45 fs) and check on the design plant and on the truth with the one simulator.  The
+acceptance runs over K in {1, 10, 50, 200, 1000} are marked slow.
+"""
+import math
+
+import numpy as np
+import pytest
+
+from seekopt import qp as qpmod
+from seekopt.bench import baseline_profile, perturbed_plant
+from seekopt.controller import Controller
+from seekopt.metrics import evaluate_profile, simulate_profile
+from seekopt.ocp import (DesignError, DesignInfeasible, DesignResult, RobustSpec, SeekDesigner,
+                         design_seek)
+from seekopt.presets import SEEK_MODES, default_truth_plant
+from seekopt.profiles import Profile, rigid_endpoint_matrix, t_bang_bang
+
+IMAX = 0.3
+
+
+@pytest.fixture(scope="module")
+def setup():
+    truth, ctrl = default_truth_plant(), Controller.nss()
+    design = perturbed_plant(truth, ctrl.sample_rate_hz)
+    return truth, ctrl, design
+
+
+@pytest.fixture(scope="module")
+def nominal(setup):
+    truth, ctrl, design = setup
+    return SeekDesigner(design, ctrl, IMAX)
+
+
+def _check_profile(prof: Profile, plant, ctrl, K):
+    fs = ctrl.sample_rate_hz
+    M = rigid_endpoint_matrix(prof.n, plant.k0, 1 / fs)
+    pos, vel = M @ prof.current_a
+    assert abs(pos - K) <= 1e-6 and abs(vel) <= 1e-6          # ZOH rigid model at rest at K
+    assert np.max(np.abs(prof.current_a)) <= IMAX
+    assert prof.reference_track[-1] == pytest.approx(K, abs=1e-6)
+    sim = simulate_profile(plant, ctrl, prof)
+    assert sim.peak_current_a <= IMAX * (1 + 1e-9)            # total current, every sub-step
+
+
+def test_robust_spec_parsing_and_plants(setup):
+    truth, ctrl, design = setup
+    s = RobustSpec.from_string("freq=5,zeta=30,gain=30,delay=2e-6,n=3")
+    assert (s.freq_pct, s.zeta_pct, s.gain_pct, s.delay_s, s.n_samples, s.objective) == (5, 30, 30, 2e-6, 3, "worst")
+    assert RobustSpec.from_string("default") == RobustSpec()
+    assert RobustSpec.from_string(s.to_string()) == s
+    for bad in ("freq", "speed=3", "freq=x", "objective=best"):
+        with pytest.raises(ValueError):
+            RobustSpec.from_string(bad)
+    plants = s.plants(design)
+    assert plants[0] is design and len(plants) == 1 + 4 + 2 + 3     # nominal, freq x delay, gain +-, draws
+    f0 = np.array([m.freq_hz for m in design.modes])
+    for p in plants[1:]:
+        f = np.array([m.freq_hz for m in p.modes])
+        assert np.all(np.abs(f / f0 - 1) <= 0.05 + 1e-12) and p.delay_s >= 0
+        assert abs(p.delay_s - design.delay_s) <= 2e-6 + 1e-15
+    assert RobustSpec(n_samples=2, seed=1).plants(design)[-1].modes != RobustSpec(n_samples=2, seed=2).plants(design)[-1].modes
+
+
+@pytest.mark.parametrize("K", [10.0, -50.0, 0.5])
+def test_design_rest_to_rest_within_imax(setup, nominal, K):
+    truth, ctrl, design = setup
+    res = nominal.design(K)
+    assert isinstance(res, DesignResult) and res.status == "verified"
+    _check_profile(res.profile, design, ctrl, K)
+    # settles on the design plant no later than the design said (sample grid)
+    assert res.metrics.settled
+    assert res.metrics.settle_time_s <= (res.settle_samples + 1) / ctrl.sample_rate_hz + 1e-12
+    assert res.profile.meta["plant_hash"] == design.hash() and res.profile.meta["controller_hash"] == ctrl.hash()
+
+
+def test_baselines_rest_to_rest_and_ff_within_imax(setup):
+    truth, ctrl, design = setup
+    for kind in ("sine", "windowed_sine"):
+        for K in (1.0, 200.0):
+            prof = baseline_profile(design, ctrl.sample_rate_hz, kind, K, IMAX)
+            pos, vel = rigid_endpoint_matrix(prof.n, design.k0, 1 / ctrl.sample_rate_hz) @ prof.current_a
+            assert abs(pos - K) <= 1e-6 and abs(vel) <= 1e-6
+            assert np.max(np.abs(prof.current_a)) <= IMAX * (1 + 1e-12)
+
+
+def test_too_short_seek_is_infeasible(setup, nominal):
+    truth, ctrl, design = setup
+    fs = ctrl.sample_rate_hz
+    tbb_samples = t_bang_bang(200.0, design.k0, IMAX) * fs
+    with pytest.raises(DesignInfeasible, match="shortest feasible seek time is") as e:
+        nominal.design(200.0, seek_samples=int(tbb_samples) - 3)
+    n_short = int(str(e.value).split("shortest feasible seek time is ")[1].split()[0])
+    assert n_short >= math.floor(tbb_samples)
+    assert "T_bb" in str(e.value)
+    # the named time is feasible (minimum residual objective (a) for that seek time)
+    res = nominal.design(200.0, seek_samples=n_short)
+    assert res.profile.seek_samples == n_short
+    _check_profile(res.profile, design, ctrl, 200.0)
+
+
+def test_min_residual_objective_improves_with_time(setup, nominal):
+    truth, ctrl, design = setup
+    r = [nominal.design(50.0, seek_samples=n).residual_band for n in (16, 22, 30)]
+    assert r[0] >= r[1] >= r[2] - 1e-6
+    assert nominal.design(50.0, seek_samples=30).objective == "min_residual/worst"
+
+
+def test_solver_built_once_and_reused(setup):
+    truth, ctrl, design = setup
+    d = SeekDesigner(design, ctrl, IMAX)
+    before = sum(qpmod.BUILD_COUNT.values())
+    d.design(40.0)
+    builds, total = d.builds, sum(qpmod.BUILD_COUNT.values())
+    assert builds >= 1 and total - before == builds
+    for K in (40.0, 45.0, 50.0, -40.0):          # same size class: no new structure, no new solver
+        d.design(K)
+    assert d.builds == builds and sum(qpmod.BUILD_COUNT.values()) == total
+
+
+def test_failed_solve_is_never_returned(setup, monkeypatch):
+    truth, ctrl, design = setup
+    d = SeekDesigner(design, ctrl, IMAX)
+
+    def failing(self, *a, **k):
+        return qpmod.QPSolution(np.full(self.n, np.nan), np.zeros(self.m), np.zeros(self.n), False,
+                                "solver crashed", 0.0, 0.0)
+
+    monkeypatch.setattr(qpmod.ConicQP, "solve", failing)
+    with pytest.raises(DesignError, match="solver crashed"):
+        d.design(10.0)
+    with pytest.raises(DesignError, match="solver crashed"):
+        d.design(10.0, seek_samples=20)
+
+    def lying(self, *a, **k):       # claims success with a useless answer
+        return qpmod.QPSolution(np.zeros(self.n), np.zeros(self.m), np.zeros(self.n), True, "1", 0.0, 0.0)
+
+    monkeypatch.setattr(qpmod.ConicQP, "solve", lying)
+    with pytest.raises(DesignError, match="violation"):
+        d.design(10.0)
+    with pytest.raises(DesignError, match="violation"):
+        d.design(10.0, seek_samples=20)
+
+
+def test_ipopt_path_agrees_with_qp(setup):
+    truth, ctrl, design = setup
+    a = SeekDesigner(design, ctrl, IMAX, hf_guard=None).design(10.0, seek_samples=12)
+    b = SeekDesigner(design, ctrl, IMAX, hf_guard=None, solver="ipopt").design(10.0, seek_samples=12)
+    assert b.solver == "ipopt"
+    assert np.allclose(a.profile.current_a, b.profile.current_a, atol=2e-3 * IMAX)
+    assert b.residual_band == pytest.approx(a.residual_band, rel=2e-2, abs=1e-3)
+
+
+def test_design_seek_and_model_reference(setup):
+    truth, ctrl, design = setup
+    res = design_seek(design, ctrl, 20.0, IMAX, reference="model")
+    _check_profile(res.profile, design, ctrl, 20.0)
+    # model reference: the profile is long enough for the firmware's hold (model at rest at K)
+    assert abs(res.profile.reference_track[-1] - 20.0) <= 1e-6
+
+
+def test_robust_design_beats_baselines_on_truth(setup):
+    """K = 50: designed on the perturbed plant, played on the truth."""
+    truth, ctrl, design = setup
+    fs = ctrl.sample_rate_hz
+    res = SeekDesigner(design, ctrl, IMAX, robust="freq=3,gain=25,zeta=30,delay=3e-6,n=2").design(50.0)
+    m = evaluate_profile(truth, ctrl, res.profile)
+    base = min(evaluate_profile(truth, ctrl, baseline_profile(design, fs, k, 50.0, IMAX)).settle_time_s
+               for k in ("sine", "windowed_sine"))
+    assert m.settled and m.settle_time_s <= 0.5 * base
+    assert m.peak_current_a <= IMAX * 1.02
+
+
+# ------------------------------------------------------------------------- acceptance (slow)
+ACCEPT_ROBUST = "freq=5,zeta=30,gain=30,delay=3e-6"
+
+
+@pytest.fixture(scope="module")
+def robust_designer(setup):
+    truth, ctrl, design = setup
+    return SeekDesigner(design, ctrl, IMAX, robust=ACCEPT_ROBUST)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("K", [1.0, 10.0, 50.0, 200.0, 1000.0])
+def test_acceptance_half_the_better_baseline(setup, robust_designer, K):
+    truth, ctrl, design = setup
+    fs = ctrl.sample_rate_hz
+    res = robust_designer.design(K)
+    _check_profile(res.profile, design, ctrl, K)
+    m = evaluate_profile(truth, ctrl, res.profile)
+    base = min(evaluate_profile(truth, ctrl, baseline_profile(design, fs, k, K, IMAX)).settle_time_s
+               for k in ("sine", "windowed_sine"))
+    assert m.settled and m.settle_time_s <= 0.5 * base
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("shift", [-0.05, 0.05])
+def test_acceptance_robust_to_seek_mode_shift(setup, robust_designer, shift):
+    truth, ctrl, design = setup
+    fs = ctrl.sample_rate_hz
+    seek = {m.freq_hz for m in SEEK_MODES}
+    shifted = truth.copy(modes=[type(m)(m.freq_hz * (1 + shift) if m.freq_hz in seek else m.freq_hz, m.zeta, m.gain)
+                                for m in truth.modes])
+    res = robust_designer.design(200.0)
+    m = evaluate_profile(shifted, ctrl, res.profile)
+    base = min(evaluate_profile(shifted, ctrl, baseline_profile(design, fs, k, 200.0, IMAX)).settle_time_s
+               for k in ("sine", "windowed_sine"))
+    assert m.settled and m.settle_time_s <= 0.7 * base
