@@ -144,12 +144,64 @@ class Engine:
         return self.d.log.position_track - self.y_lin - self.y_out
 
     def base_cols(self) -> list:
-        """Regressors of the base re-fit: relative k0 change [-], bias change [A]."""
-        return [self.y_lin, self.resp(force=np.ones(self.d.log.n))]
+        """Regressors of the base re-fit: relative k0 change [-], bias change [A], then the
+        linear parameters of the plant's effects (Kt coefficients, position-bias table,
+        periodic cos/sin, extra-mode gains; ``self.setters`` says which), re-fitted jointly
+        with every candidate."""
+        if getattr(self, "_base", None) is None:
+            cols, self.setters = [self.y_lin, self.resp(force=np.ones(self.d.log.n))], []
+            y, t = self.d.log.position_track, self.d.log.time_s
+            for e in self.plant.effects:
+                d = e.to_dict()
+                if isinstance(e, TorqueConstantVariation):
+                    pre = self.cmd / e.factor(y)
+                    x = (y - e.center_track) / e.scale_track
+                    for j in range(len(e.coeffs)):
+                        cols.append(self.resp(cmd=pre * x ** (j + 1))); self.setters.append((d, "coeffs", j, True))
+                elif isinstance(e, PositionBias):
+                    for j, h in enumerate(_hats(y, e.knots_track)):
+                        cols.append(self.resp(force=h)); self.setters.append((d, "bias_a", j, True))
+                elif isinstance(e, PeriodicDisturbance):
+                    for j, h in enumerate(e.harmonics):
+                        ph = 2 * np.pi * h * e.spindle_hz * t
+                        cols += [np.cos(ph), np.sin(ph)]
+                        self.setters += [(d, "cos_track", j, False), (d, "sin_track", j, False)]
+                elif isinstance(e, ExtraMode):
+                    cols.append(_mode_column(self.plant, self, e.freq_hz, e.zeta))
+                    self.setters.append((d, "gain", None, True))
+            self._base = cols
+        return self._base
 
     def residual(self) -> np.ndarray:
         """Output-error residual on the window samples [track]."""
         return self.project(self.target())[:, 0]
+
+
+def rebase(plant: ModalPlant, th, setters=(), **changes) -> ModalPlant:
+    """Apply a base re-fit ``th`` (:meth:`Engine.base_cols` order): ``k0 *= 1 + th[0]``,
+    ``bias_a += th[1] / (1 + th[0])``, each effect parameter in ``setters`` += its theta
+    (divided by ``1 + th[0]`` where the regressor scales with k0)."""
+    import json
+    from .effects import effect_from_dict
+    k = float(th[0])
+    p = plant.copy(k0=plant.k0 * (1.0 + k), **changes)
+    if len(th) > 1:
+        p.bias_a = plant.bias_a + float(th[1]) / (1.0 + k)
+    if len(th) > 2 and setters:
+        eff = [e.to_dict() for e in p.effects]
+        keys = [json.dumps(e, sort_keys=True) for e in eff]
+        for (d, key, j, scaled), t in zip(setters, th[2:]):
+            kd = json.dumps(d, sort_keys=True)
+            if kd not in keys:
+                continue
+            prm = eff[keys.index(kd)]["params"]
+            val = float(t) / (1.0 + k) if scaled else float(t)
+            if j is None:
+                prm[key] = prm[key] + val
+            else:
+                prm[key] = list(prm[key]); prm[key][j] = prm[key][j] + val
+        p.effects = [effect_from_dict(e) for e in eff]
+    return p
 
 
 def lstsq(r: np.ndarray, Z: np.ndarray, bounds=None):
@@ -198,19 +250,14 @@ def bic(e: np.ndarray, data: Data, k: int, order: int = 12) -> float:
     return float(n * math.log(max(w @ w / n, 1e-300)) + (k + order) * math.log(n))
 
 
-def rebase(plant: ModalPlant, th_k0: float, th_bias: float, **changes) -> ModalPlant:
-    """Apply a base re-fit: ``k0 *= 1 + th_k0``, ``bias_a += th_bias / (1 + th_k0)``."""
-    return plant.copy(k0=plant.k0 * (1.0 + th_k0), bias_a=plant.bias_a + th_bias / (1.0 + th_k0),
-                      **changes)
-
-
 def refit_base(plant: ModalPlant, data: Data, iters: int = 2) -> ModalPlant:
-    """Output-error least-squares re-fit of ``k0`` and ``bias_a`` (Gauss-Newton)."""
+    """Output-error least-squares re-fit of ``k0``, ``bias_a`` and the effects' linear
+    parameters (Gauss-Newton, ``iters`` steps)."""
     for _ in range(iters):
         eng = Engine(plant, data)
         P = eng.project(eng.target(), *eng.base_cols())
         th, _ = lstsq(P[:, 0], P[:, 1:])
-        plant = rebase(plant, th[0], th[1])
+        plant = rebase(plant, th, eng.setters)
     return plant
 
 
@@ -285,15 +332,18 @@ def fit_current_saturation(plant, data):
 
 def _linear_fit(plant, data, cols, rigid=False, bounds=None, channel="force", with_bias=True,
                 centred=False):
-    """Fit extra regressors (features through the force or command channel) with the base.
+    """Fit extra regressors (features through the force or command channel) jointly with the
+    base (:meth:`Engine.base_cols`; without the bias column if ``with_bias`` is False).
 
-    Returns ``(base_theta, theta, sse, wald_chi2)``; the Wald statistic tests ``theta = 0``
-    or, with ``centred``, equal ``theta`` (variation only, for bins that sum to a base term)."""
+    Returns ``(apply, theta, sse, wald_chi2)``: ``apply(new_plant)`` applies the base part of
+    the fit; the Wald statistic tests ``theta = 0`` or, with ``centred``, equal ``theta``
+    (variation only, for bins that sum to a base term)."""
     eng = Engine(plant, data)
-    base = eng.base_cols() if with_bias else eng.base_cols()[:1]
+    allb = eng.base_cols()
+    keep = [i for i in range(len(allb)) if with_bias or i != 1]
     feats = [eng.resp(force=c, rigid_only=rigid) if channel == "force" else eng.resp(cmd=c) for c in cols]
-    P = eng.project(eng.target(), *base, *feats)
-    nb = len(base)
+    P = eng.project(eng.target(), *[allb[i] for i in keep], *feats)
+    nb = len(keep)
     bnd = None if bounds is None else ([-np.inf] * nb + list(bounds[0]), [np.inf] * nb + list(bounds[1]))
     th, sse = lstsq(P[:, 0], P[:, 1:], bnd)
     e = P[:, 0] - P[:, 1:] @ th
@@ -302,65 +352,101 @@ def _linear_fit(plant, data, cols, rigid=False, bounds=None, channel="force", wi
     if centred:
         C = (np.eye(len(t)) - 1.0 / len(t))[:-1]
         t, cov = C @ t, C @ cov @ C.T
-    return th[:nb], th[nb:], sse, wald(t, cov)
+    full = np.zeros(len(allb))
+    full[keep] = th[:nb]
+    setters = eng.setters
+
+    def apply(new_plant):
+        return rebase(new_plant, full, setters)
+    apply.k = float(full[0])
+    apply.bias = float(full[1])
+    return apply, th[nb:], sse, wald(t, cov)
 
 
-def fit_friction(plant, data, max_sim_samples: int = 4000):
+def _friction_force(c, vis, bias, u_del, v, moving):
+    """Fast friction model from measured signals [A]: ``-c sign(v) - vis v`` while moving,
+    and while stuck the force that holds the head, ``-clip(u + bias, -c, c)``."""
+    return np.where(moving, -c * np.sign(v) - vis * v, -np.clip(u_del + bias, -c, c))
+
+
+def fit_friction(plant, data, max_sim_samples: int = 8000):
     v = data.v
-    s = np.tanh(v / data.v_scale)
-    (k, b), (c, vis), _, w = _linear_fit(plant, data, [-s, -v], bounds=([0, 0], [np.inf, np.inf]))
+    ap, (c, vis), _, w = _linear_fit(plant, data, [-np.tanh(v / data.v_scale), -v],
+                                     bounds=([0, 0], [np.inf, np.inf]))
     if w < MIN_WALD:
         return None
-    p = rebase(plant, k, b, effects=plant.effects + [Friction(float(c / (1 + k)), float(vis / (1 + k)))])
+    # 1. fast model with sticking (a head at rest stays while |u + bias| < c), base jointly
+    eng = Engine(plant, data)
+    m = eng.lm.m
+    u = eng.cmd
+    u_del = np.r_[np.full(m + 1, u[0]), u[:len(u) - m - 1]]
+    moving = np.abs(v) > 2 * data.v_scale
+    base = eng.base_cols()
+    B = eng.project(*[base[i] for i in range(len(base)) if i != 1])
+    c0, v0 = max(c / (1 + ap.k), 1e-6), max(vis / (1 + ap.k), 1e-12)
+
+    def fast(x):
+        cc, bb, vv = abs(c0 * (1 + x[0])), plant.bias_a + c0 * x[1], abs(v0 * (1 + x[2]))
+        col = eng.resp(force=_friction_force(cc, vv, bb, u_del, v, moving) + bb - plant.bias_a)
+        th, sse = lstsq(eng.project(eng.target() - col)[:, 0], B)
+        return sse, th, (cc, bb, vv)
+    x = minimize(lambda x: fast(x)[0], np.zeros(3), method="Nelder-Mead",
+                 options={"maxiter": 150, "xatol": 2e-3, "initial_simplex": np.vstack([np.zeros(3), 0.2 * np.eye(3)])}).x
+    _, th, (cc, bb, vv) = fast(x)
+    full = np.r_[th[0], 0.0, th[1:]]
+    p = rebase(plant.copy(bias_a=bb), full, eng.setters, effects=plant.effects + [Friction(float(cc), float(vv))])
+    # 2. bias and Coulomb level by simulation (the rigid body integrates 1e-6 A errors visibly)
     p = sim_refine(p, data.subset(max_sim_samples))
     p = polish(p, data, 1, bias=False)
     return Fit("friction", p, 2, p.effects[-1].params,
-               "Coulomb level and bias refined by simulation (the head sticks in dwell)")
+               "fast sticking model, then bias and Coulomb level refined by DiscretePlant simulation")
 
 
-def sim_refine(plant: ModalPlant, data: Data, max_iter: int = 35) -> ModalPlant:
-    """Refine the last effect's (friction) Coulomb and viscous levels and ``bias_a`` by
-    ``DiscretePlant`` simulation (Nelder-Mead on the output-error SSE: sticking makes it
-    non-smooth)."""
-    fr = plant.effects[-1]
-    c0, v0, b0 = max(fr.coulomb_a, 1e-6), fr.viscous_a_per_tps, plant.bias_a
-    vmax = float(np.abs(data.v[data.windows.index()]).max())
-    scale = np.array([0.1 * c0, 0.05 * c0, max(0.2 * v0, 0.05 * c0 / vmax)])
+def sim_refine(plant: ModalPlant, data: Data, rounds=("bias", "coulomb", "bias")) -> ModalPlant:
+    """Coordinate refinement (Brent, by ``DiscretePlant`` simulation) of ``bias_a`` and of the
+    last effect's (friction) Coulomb level."""
+    for what in rounds:
+        fr = plant.effects[-1]
+        c = fr.coulomb_a
+        if what == "bias":
+            def make(x, p=plant):
+                return p.copy(bias_a=p.bias_a + x)
+            lo, hi = -0.05 * c, 0.05 * c
+        else:
+            def make(x, p=plant, fr=fr):
+                return p.copy(effects=p.effects[:-1] + [Friction(max(fr.coulomb_a + x, 0.0), fr.viscous_a_per_tps)])
+            lo, hi = -0.15 * c, 0.15 * c
 
-    def make(x):
-        c, bias, vis = c0 + x[0] * scale[0], b0 + x[1] * scale[1], v0 + x[2] * scale[2]
-        return plant.copy(bias_a=bias, effects=plant.effects[:-1] + [Friction(max(c, 0.0), max(vis, 0.0))])
-
-    def cost(x):
-        e = simulate(make(x), data.log, data.windows, passes=1, continuous=False).e
-        return float(e @ e)
-    simplex = np.vstack([np.zeros(3), np.eye(3)])
-    r = minimize(cost, np.zeros(3), method="Nelder-Mead",
-                 options={"initial_simplex": simplex, "xatol": 0.02, "fatol": 1e-4, "maxiter": max_iter})
-    return make(r.x)
+        def cost(x):
+            e = simulate(make(x), data.log, data.windows, passes=1, continuous=False).e
+            return float(e @ e)
+        r = minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 0.002 * c, "maxiter": 14})
+        if r.fun < cost(0.0):
+            plant = make(r.x)
+    return plant
 
 
 def polish(plant: ModalPlant, data: Data, iters: int = 2, bias: bool = True) -> ModalPlant:
     """Base re-fit with the command and force sequences of the plant's own simulation
     (for effects the measured signals do not reproduce, e.g. friction sticking);
-    ``bias=False`` re-fits ``k0`` only."""
+    ``bias=False`` keeps ``bias_a``."""
     for _ in range(iters):
         res = simulate(plant, data.log, data.windows, continuous=False, record=True)
         new = refit_base(plant, data.freeze(plant, res), iters=1)
-        plant = new if bias else plant.copy(k0=new.k0)
+        plant = new if bias else new.copy(bias_a=plant.bias_a)
     return plant
 
 
 def fit_pivot_spring_damper(plant, data):
     y = data.log.position_track
-    (k, b), (ks, kd), _, w = _linear_fit(plant, data, [-y, -data.v], rigid=True,
-                                         bounds=([0, 0], [np.inf, np.inf]))
+    ap, (ks, kd), _, w = _linear_fit(plant, data, [-y, -data.v], rigid=True, bounds=([0, 0], [np.inf, np.inf]))
     if ks <= 0 or w < MIN_WALD:
         return None
     wp = math.sqrt(ks * plant.k0)          # stiffness force ks*y [A] -> wp^2 = ks k0
     zeta = kd * plant.k0 / (2 * wp)
-    eff = PivotSpringDamper(float(wp / (2 * math.pi)), float(zeta), float(b / ks))
-    p = refit_base(plant.copy(k0=plant.k0 * (1 + k), effects=plant.effects + [eff]), data)
+    eff = PivotSpringDamper(float(wp / (2 * math.pi)), float(zeta), float(ap.bias / ks))
+    base = ap(plant)
+    p = refit_base(base.copy(bias_a=plant.bias_a, effects=base.effects + [eff]), data)
     return Fit("pivot_spring_damper", p, 2, eff.params,
                "rest_track is confounded with bias_a (constant force b = stiffness * rest)")
 
@@ -386,10 +472,11 @@ def fit_position_bias(plant, data):
     fits, walds = [], {}
     for K in (3, 5, 9):
         knots = np.linspace(lo, hi, K)
-        (k,), th, _, w = _linear_fit(plant, data, _hats(data.log.position_track, knots), with_bias=False,
-                                     centred=True)
-        eff = PositionBias([float(x) for x in knots], [float(t / (1 + k)) for t in th])
-        fits.append((K - 1, refit_base(plant.copy(k0=plant.k0 * (1 + k), effects=plant.effects + [eff]), data)))
+        ap, th, _, w = _linear_fit(plant, data, _hats(data.log.position_track, knots), with_bias=False,
+                                   centred=True)
+        eff = PositionBias([float(x) for x in knots], [float(t / (1 + ap.k)) for t in th])
+        base = ap(plant)
+        fits.append((K - 1, refit_base(base.copy(effects=base.effects + [eff]), data)))
         walds[K - 1] = w
     n, p = _pick_by_bic(plant, data, fits)
     if walds[n] < MIN_WALD:
@@ -404,11 +491,12 @@ def fit_torque_constant_variation(plant, data):
     eng = Engine(plant, data)
     fits = []
     for deg in (1, 2, 3):
-        (k, b), th, _, w = _linear_fit(plant, data, [eng.cmd * x ** (i + 1) for i in range(deg)], channel="cmd")
+        ap, th, _, w = _linear_fit(plant, data, [eng.cmd * x ** (i + 1) for i in range(deg)], channel="cmd")
         if deg == 1 and w < MIN_WALD:
             return None
-        eff = TorqueConstantVariation([float(t / (1 + k)) for t in th], float(c0), float(sc))
-        fits.append((deg, refit_base(rebase(plant, k, b, effects=plant.effects + [eff]), data)))
+        eff = TorqueConstantVariation([float(t / (1 + ap.k)) for t in th], float(c0), float(sc))
+        base = ap(plant)
+        fits.append((deg, refit_base(base.copy(effects=base.effects + [eff]), data)))
     n, p = _pick_by_bic(plant, data, fits)
     return Fit("torque_constant_variation", p, n, p.effects[-1].params)
 
@@ -452,10 +540,10 @@ def fit_extra_mode(plant, data, n_grid: int = 24, max_samples: int = 8000):
     X = np.column_stack([P0[:, 1:], col])
     th, _ = lstsq(P0[:, 0], X)
     cov = cluster_cov(X, P0[:, 0] - X @ th, data)
-    if th[2] ** 2 / cov[2, 2] < MIN_WALD:
+    if th[-1] ** 2 / cov[-1, -1] < MIN_WALD:
         return None
-    eff = ExtraMode(f, z, float(th[2] / (1 + th[0])))
-    p = refit_base(rebase(plant, th[0], th[1], effects=plant.effects + [eff]), full)
+    eff = ExtraMode(f, z, float(th[-1] / (1 + th[0])))
+    p = refit_base(rebase(plant, th[:-1], eng.setters, effects=plant.effects + [eff]), full)
     return Fit("extra_mode", p, 3, eff.params)
 
 
@@ -544,9 +632,10 @@ def fit_periodic_disturbance(plant, data, spindle_hz=None):
                                    bounds=(f0 - 1.0 / T, f0 + 1.0 / T), method="bounded",
                                    options={"xatol": 2e-3}).x)
     _, th, _ = _harmonic_fit(eng, P0, data, f0, hs)
-    eff = PeriodicDisturbance(float(f0), [int(h) for h in hs], [float(x) for x in th[2::2]],
-                              [float(x) for x in th[3::2]])
-    p = refit_base(rebase(plant, th[0], th[1], effects=plant.effects + [eff]), data)
+    nb = P0.shape[1] - 1
+    eff = PeriodicDisturbance(float(f0), [int(h) for h in hs], [float(x) for x in th[nb::2]],
+                              [float(x) for x in th[nb + 1::2]])
+    p = refit_base(rebase(plant, th[:nb], eng.setters, effects=plant.effects + [eff]), data)
     return Fit("periodic_disturbance", p, 2 * len(hs) + (0 if known else 1), eff.params)
 
 

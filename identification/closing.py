@@ -57,6 +57,7 @@ class Step:
     iteration: int = 0
     bic_drop: float = 0.0
     fit_percent_after: float = float("nan")
+    improved_fraction: float = float("nan")
     plant: ModalPlant | None = field(default=None, repr=False)
 
     def to_dict(self) -> dict:
@@ -139,6 +140,18 @@ def evaluate(plant: ModalPlant, data: Data, same_log: bool = True, record: bool 
     keep = [e for e in plant.effects if e.kind != "output"]
     res = simulate(plant.copy(effects=keep), data.log, data.windows, continuous=False, record=record)
     return Residual(res.windows, _harmonic_nuisance(res, plant), res.y_sim, res.log, res.cmd, res.force)
+
+
+def improved_fraction(new: Residual, old: Residual) -> float:
+    """Fraction of validation seeks whose squared error the new model lowers [-]."""
+    def per_seek(r):
+        out, i = {}, 0
+        for (a, b), g in zip(r.windows.bounds, r.windows.groups):
+            out[g] = out.get(g, 0.0) + float(r.e[i:i + b - a] @ r.e[i:i + b - a])
+            i += b - a
+        return out
+    n, o = per_seek(new), per_seek(old)
+    return float(np.mean([n[g] < o[g] for g in n]))
 
 
 def errors(res: Residual) -> dict:
@@ -363,7 +376,7 @@ def _backfit(name: str, plant: ModalPlant, fit: Data, val: Data, same: bool, cur
     if rv.rms >= cur_val.rms:
         return None, None
     st = Step(name, F.params, f"re-fitted {why} (backfitting)", cur_val.rms, rv.rms, True, it,
-              float("nan"), rv.fit_percent, F.plant)
+              float("nan"), rv.fit_percent, improved_fraction(rv, cur_val), F.plant)
     return st, (evaluate(F.plant, fit, record=True), rv)
 
 
@@ -439,10 +452,11 @@ def close_loop(log: SeekLog, model: ModalPlant, validation: SeekLog | None = Non
                 rf = evaluate(F.plant, fit, record=True)
                 drop = cur_bic - bic(rf.e, fit, F.n_params)
             st = Step(name, F.params, ev.get(name, ""), cur_val.rms, rv.rms, False, it, drop,
-                      rv.fit_percent, F.plant)
+                      rv.fit_percent, improved_fraction(rv, cur_val), F.plant)
             tried.append((st, rf, rv))
             say(f"  {name}: val rms {rv.rms:.4g} ({100 * (1 - rv.rms / cur_val.rms):+.1f} %), "
-                f"BIC drop {drop:.1f} ({time.time() - tc:.1f} s)")
+                f"BIC drop {drop:.1f}, seeks improved {100 * st.improved_fraction:.0f} % "
+                f"({time.time() - tc:.1f} s)")
         ok = [t for t in tried if t[1] is not None and t[0].bic_drop > min_bic
               and t[0].rms_after <= (1 - min_drop) * cur_val.rms]
         steps += [t[0] for t in tried]

@@ -38,7 +38,7 @@ class DemoError(ValueError):
 
 @dataclass
 class DemoConfig:
-    """What the demo does.  ``quick`` (for tests) uses the first 40 seeks of the log and shrinks
+    """What the demo does.  ``quick`` (for tests) uses the first 60 seeks of the log and shrinks
     the design set and the sweep."""
 
     log: str | None = None
@@ -57,7 +57,16 @@ class DemoConfig:
     def __post_init__(self):
         if self.quick:
             self.lengths, self.sweep_lengths, self.sweep_tpi_factors = (10, 1000), (10, 1000), (1.0, 3.0)
-            self.max_seeks = self.max_seeks or 40
+            self.max_seeks = self.max_seeks or 60
+
+
+def loop_is_stable(plant, controller, n: int = 3000) -> bool:
+    """Does the linear 2DOF loop of ``plant`` and ``controller`` decay?  (Impulse response from the
+    reference over ``n`` servo samples, by the one simulator; a stable loop decays by many decades.)"""
+    from .simulate import closed_loop_responses
+    y = closed_loop_responses(plant, controller, n)["y_r"]
+    peak = float(np.max(np.abs(y))) if np.all(np.isfinite(y)) else float("inf")
+    return bool(np.isfinite(peak) and np.max(np.abs(y[-n // 10:])) < 1e-3 * peak)
 
 
 def first_seeks(log, n: int):
@@ -229,6 +238,10 @@ def run_demo(cfg: DemoConfig) -> dict:
         plant, id_notes = identify_plant(log)
         plant.to_json(out / "plant.json")
         rec[3] = f"k0 = {plant.k0:.4g} track/(A s^2), {len(plant.modes)} modes"
+        if not loop_is_stable(plant, controller):
+            id_notes["warning"] = (f"the closed loop of the identified plant with `{controller.name}` does not "
+                                   "decay (unstable model loop): designs and benches on it are not trustworthy")
+            rec[1], rec[3] = "warning", rec[3] + "; UNSTABLE model loop with the drive's controller"
 
     with run.stage("close the loop") as rec:
         plant2, loop_summary = close_loop(log, plant)

@@ -66,7 +66,7 @@ class RobustSpec:
     delay_s : float
         Half-width of the delay range [s].
     n_samples : int
-        Random plants drawn (seeded) in the box, in addition to the nominal and the corners
+        Random vertices of the box (seeded), in addition to the nominal and the corners
         (all frequencies x delay x ``k0`` at +- the range, all gains +-).
     objective : {"worst", "mean"}
         ``worst``: settle band (or residual epigraph) enforced on every plant; ``mean``: on the
@@ -121,7 +121,9 @@ class RobustSpec:
                 f"delay={self.delay_s:g},k0={self.k0_pct:g},n={self.n_samples},objective={self.objective}")
 
     def plants(self, plant: ModalPlant) -> list:
-        """Nominal first, then the corners, then ``n_samples`` seeded draws (uniform in the box)."""
+        """Nominal first, then the corners, then ``n_samples`` seeded random vertices of the box (each
+        mode's frequency and gain, the delay and ``k0`` at +- their range with random signs; damping
+        uniform): the settle residual is linear in the gains, so its worst case sits on vertices."""
         f, z, g, k = self.freq_pct / 100, self.zeta_pct / 100, self.gain_pct / 100, self.k0_pct / 100
 
         def var(df=0.0, dz=0.0, dg=0.0, dd=0.0, dk=0.0):
@@ -141,10 +143,10 @@ class RobustSpec:
             out += [var(dg=g), var(dg=-g)]
         rng = np.random.default_rng(self.seed)
         n = len(plant.modes)
-        for _ in range(self.n_samples):
-            out.append(var(df=f * rng.uniform(-1, 1, n), dz=z * rng.uniform(-1, 1, n),
-                           dg=g * rng.uniform(-1, 1, n), dd=self.delay_s * rng.uniform(-1, 1),
-                           dk=k * rng.uniform(-1, 1)))
+        for _ in range(self.n_samples):   # random vertices (independent signs per mode), damping uniform
+            out.append(var(df=f * rng.choice((-1.0, 1.0), n), dz=z * rng.uniform(-1, 1, n),
+                           dg=g * rng.choice((-1.0, 1.0), n), dd=self.delay_s * rng.choice((-1.0, 1.0)),
+                           dk=k * rng.choice((-1.0, 1.0))))
         return out
 
 
@@ -215,7 +217,7 @@ class SeekDesigner:
     def __init__(self, plant: ModalPlant, controller, imax: float, settle: float = 0.1, robust=None, *,
                  tail_s: float = 0.008, reference: str = "free", solver: str = "daqp",
                  solver_options: dict | None = None, band_margin: float = 0.7, current_margin: float = 0.97,
-                 hf_guard=(0.45, 0.65), hf_gain: float = 1.0, hf_tol: float = 0.2,
+                 hf_guard=(0.45, 0.65), hf_gain: float = 1.0, hf_tol: float = 0.1,
                  slew_a_per_s: float | None = None, check_robust: bool = False, max_samples: int = 512):
         if not (imax > 0 and settle > 0 and 0 < band_margin <= 1 and 0 < current_margin <= 1):
             raise ValueError("imax, settle > 0 and 0 < band_margin, current_margin <= 1 required")
@@ -285,7 +287,7 @@ class SeekDesigner:
         sol = qp.solver.solve(*data, x0=x0)
         if sol.success:     # never trust a status alone: re-check the answer against the data
             viol = qp.violation(sol.x, K, *data[3:])
-            if viol > 1e-5:
+            if viol > 1e-3:
                 sol.success, sol.status = False, f"{sol.status}; constraint violation {viol:.2g}"
         stats["n"] += 1
         stats["t"] += sol.solve_time_s

@@ -73,6 +73,7 @@ def plot_seek_settle_vs_length(df, path) -> Path:
             ax.plot(d["tracks"], 1e3 * d["t_bb_s"].astype(float), ":", lw=0.8, color=col[tpi])
         ax.set_xscale("log")
         ax.set_yscale("log")
+        ax.set_xlim(df["tracks"].min() / 1.5, df["tracks"].max() * 1.5)
         ax.set_title(KIND_LABELS.get(kind, kind))
         ax.set_xlabel("seek length [track]")
         ax.grid(True, which="both", alpha=0.3)
@@ -117,6 +118,10 @@ def plot_gain_over_baselines(df, path) -> Path:
             ax.plot(d["tracks"], d[f"saving_vs_{k}_pct"], "-o", ms=3, color=col[tpi], label=_tpi_label(tpi))
         ax.axhline(0.0, color="k", lw=0.8)
         ax.set_xscale("log")
+        ax.set_xlim(s["tracks"].min() / 1.5, s["tracks"].max() * 1.5)
+        if not np.isfinite(s[f"saving_vs_{k}_pct"].to_numpy(dtype=float)).any():
+            ax.text(0.5, 0.5, f"no length where both optimal and\n{KIND_LABELS[k]} settled",
+                    transform=ax.transAxes, ha="center", va="center", color="0.4")
         ax.set_title(f"optimal vs {KIND_LABELS[k]}")
         ax.set_xlabel("seek length [track]")
         ax.grid(True, which="both", alpha=0.3)
@@ -140,7 +145,7 @@ def plot_heatmap(df, path, column: str = "saving_vs_best_pct") -> Path:
     pct = column.endswith("_pct")
     im = ax.imshow(np.ma.masked_invalid(vals), aspect="auto", origin="lower",
                    cmap="RdBu" if pct else "viridis", vmin=-lim if pct else None, vmax=lim if pct else None)
-    im.cmap.set_bad("0.85")
+    im.set_cmap(im.cmap.with_extremes(bad="0.85"))
     for (i, j), v in np.ndenumerate(vals):
         ax.text(j, i, "×" if not math.isfinite(v) else f"{v:.0f}" if pct else f"{v:.2g}",
                 ha="center", va="center", fontsize=7)

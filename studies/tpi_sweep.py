@@ -9,7 +9,7 @@ band ±0.1 track), seek lengths 1 ... 10000 tracks, Imax 0.3 A: the optimal prof
 
 Usage::
 
-    python studies/tpi_sweep.py [-o studies/out/tpi_sweep] [--workers N | --dask local|tcp://...]
+    python studies/tpi_sweep.py [-o tpi_sweep_results] [--workers N | --dask local|tcp://...]
                                 [--quick] [--designer ocp]
 
 The sweep folder is resumable: an interrupted study continues where it stopped.
@@ -24,7 +24,6 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from seekopt import __version__  # noqa: E402
@@ -102,7 +101,7 @@ def write_markdown(df: pd.DataFrame, summary, cfg: SweepConfig, path: Path, cmd:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("-o", "--output", default=str(ROOT / "studies" / "out" / "tpi_sweep"))
+    p.add_argument("-o", "--output", default="tpi_sweep_results", help="sweep folder (resumable)")
     p.add_argument("--doc", default=str(ROOT / "docs" / "results_sweep.md"))
     p.add_argument("--workers", type=int, default=None)
     p.add_argument("--dask", default=None, help="'local' or tcp://HOST:PORT")

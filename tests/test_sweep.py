@@ -159,7 +159,7 @@ def test_failing_cell_recorded_and_sweep_goes_on(tmp_path):
     cfg = config(designer="test_sweep:FailingDesigner", tpis=[100e3])
     s = run_sweep(cfg, tmp_path, engine="serial", progress=False, figures=True)
     assert s.failed_cells == [cell_key(100e3, 10)] and s.computed == 3
-    df = pd.read_csv(tmp_path / "results.csv").fillna("")
+    df = pd.read_csv(tmp_path / "results.csv", keep_default_na=False)
     bad = df[(df["tracks"] == 10) & (df["kind"] == "optimal")].iloc[0]
     assert bad["status"] == "error" and bad["error"] == "RuntimeError: solver exploded second line"
     assert (df[df["kind"] != "optimal"]["status"] == "ok").all()
@@ -237,6 +237,8 @@ def test_optimal_sweep_deterministic_across_engines(tmp_path):
     cfg = config(designer="ocp", tpis=[200e3, 600e3], tracks=[10, 200])
     run_sweep(cfg, tmp_path / "a", engine="serial", progress=False, figures=False)
     run_sweep(cfg, tmp_path / "b", engine="process", workers=2, progress=False, figures=False)
-    a, b = numbers(tmp_path / "a"), numbers(tmp_path / "b")
-    pd.testing.assert_frame_equal(a, b, check_exact=True)
+    run_sweep(cfg, tmp_path / "c", engine="local", workers=2, progress=False, figures=False)
+    a = numbers(tmp_path / "a")
+    for other in ("b", "c"):
+        pd.testing.assert_frame_equal(a, numbers(tmp_path / other), check_exact=True)
     assert (a[a["kind"] == "optimal"]["status"] == "ok").all()
