@@ -10,8 +10,11 @@
 3. fits every candidate of :data:`identification.candidates.CANDIDATES` on the fit
    data (each re-fitted with ``k0`` and ``bias_a``), simulates it, and accepts the
    best one if (a) its BIC on the fit data (output error with an AR noise model)
-   is lower than the current model's by more than ``min_bic`` and (b) its RMS error
-   on the validation data is at most ``(1 - min_drop)`` times the current one;
+   is lower than the current model's by more than ``min_bic``, (b) its RMS error
+   on the validation data is at most ``(1 - min_drop)`` times the current one and
+   (c) it lowers the error of at least ``min_seeks`` of the validation seeks;
+   accepted effects are re-fitted jointly with every later candidate (their linear
+   parameters) or re-fitted one by one (backfitting);
 4. repeats greedily until no candidate passes, then lists in ``unexplained`` the
    structure that is still in the validation residual.
 
@@ -394,8 +397,8 @@ def split_data(log: SeekLog, validation: SeekLog | None = None):
 
 
 def close_loop(log: SeekLog, model: ModalPlant, validation: SeekLog | None = None,
-               candidates=None, min_drop: float = 0.05, min_bic: float = 10.0, max_steps: int = 6,
-               verbose: bool = False) -> LoopResult:
+               candidates=None, min_drop: float = 0.05, min_bic: float = 10.0, min_seeks: float = 0.6,
+               max_steps: int = 6, verbose: bool = False) -> LoopResult:
     """Augment ``model`` with effects that the data support (see the module notes).
 
     Parameters
@@ -412,6 +415,9 @@ def close_loop(log: SeekLog, model: ModalPlant, validation: SeekLog | None = Non
         Required relative drop of the validation RMS for an acceptance [-].
     min_bic : float
         Required BIC drop on the fit data.
+    min_seeks : float
+        Required fraction of validation seeks whose error the candidate lowers [-] (the RMS
+        is dominated by the longest seeks; the improvement must be consistent).
     max_steps : int
         Maximum number of accepted effects.
     """
@@ -458,7 +464,7 @@ def close_loop(log: SeekLog, model: ModalPlant, validation: SeekLog | None = Non
                 f"BIC drop {drop:.1f}, seeks improved {100 * st.improved_fraction:.0f} % "
                 f"({time.time() - tc:.1f} s)")
         ok = [t for t in tried if t[1] is not None and t[0].bic_drop > min_bic
-              and t[0].rms_after <= (1 - min_drop) * cur_val.rms]
+              and t[0].rms_after <= (1 - min_drop) * cur_val.rms and t[0].improved_fraction >= min_seeks]
         steps += [t[0] for t in tried]
         if not ok:
             break

@@ -325,7 +325,7 @@ class VarPro:
         from scipy.optimize import least_squares
         x0 = np.clip(x0, lb + 1e-9, ub - 1e-9)
         res = least_squares(self.residual, x0, jac=self.jacobian, bounds=(lb, ub), method="trf",
-                            x_scale="jac", max_nfev=max_nfev, xtol=1e-10, ftol=1e-10)
+                            x_scale="jac", max_nfev=max_nfev, xtol=1e-9, ftol=1e-9)
         return res.x
 
     def scan(self, x, freqs, zetas=(0.01, 0.05), chunk: int = 32):
@@ -376,9 +376,10 @@ def detect_period(rows, r, periods=range(20, 2001), f_min: float = 4.0):
     return best, fbest
 
 
-def periodic_columns(n: int, period: float, harmonics: int) -> np.ndarray:
-    """``[cos(2 pi h k / P), sin(2 pi h k / P)]`` for ``h = 1..harmonics``, ``k = 0..n-1`` (run-out nuisance)."""
-    k = np.arange(n)
+def periodic_columns(n: int, period: float, harmonics: int, offset: int = 0) -> np.ndarray:
+    """``[cos(2 pi h k / P), sin(2 pi h k / P)]`` for ``h = 1..harmonics``, ``k = offset..offset+n-1``
+    (run-out nuisance; ``k`` is the log's sample index)."""
+    k = np.arange(offset, offset + n)
     cols = []
     for h in range(1, harmonics + 1):
         cols += [np.cos(2 * np.pi * h * k / period), np.sin(2 * np.pi * h * k / period)]
@@ -400,12 +401,15 @@ def sandwich_cov(J, r, bounds, lags: int):
     cov_white = B * float(r @ r) / dof
     G = Js * r[:, None]
     M = G.T @ G
+    inner = np.asarray(bounds[1:-1], dtype=int)
     for lag in range(1, lags + 1):
         w = 1.0 - lag / (lags + 1.0)
-        ok = np.ones(len(r) - lag, dtype=bool)
-        for b in bounds[1:-1]:           # pairs (i, i + lag) that straddle a segment boundary
-            ok[max(b - lag, 0):b] = False
-        C = G[:-lag][ok].T @ G[lag:][ok]
+        C = G[:-lag].T @ G[lag:]
+        # remove the pairs (i, i + lag) that straddle a segment boundary
+        idx = (inner[:, None] - np.arange(1, lag + 1)[None, :]).ravel()
+        idx = np.unique(idx[(idx >= 0) & (idx + lag < len(r))])
+        if len(idx):
+            C -= G[idx].T @ G[idx + lag]
         M += w * (C + C.T)
     cov = B @ M @ B * len(r) / dof
     return cov / np.outer(s, s), cov_white / np.outer(s, s)

@@ -37,8 +37,8 @@ extra columns of the synthetic drive).
        modes whose gain is not significant (``|g| / std < t_min``) are dropped.  A repeatable
        run-out (period detected in the residual of the model with its modes,
        :func:`identification.gains.detect_period`) enters as ``periodic_harmonics`` harmonics.  The
-       search runs on at most ``stage_rows`` samples (every k-th seek), the final refinement on all
-       fitted seeks.
+       search runs on the first fitted seeks holding about ``stage_rows`` samples (a contiguous
+       stretch of the log), the final refinement on all fitted seeks.
     c. Standard deviations from the Jacobian of the whitened problem with respect to all parameters
        (Gauss-Newton covariance), as a Newey-West sandwich (Bartlett weights, ``nw_lags`` lags,
        within segments) for the colour the AR model leaves; the ratio to the plain ``s^2 (J^T J)^-1``
@@ -209,7 +209,8 @@ def identify(log: SeekLog, method: str = "robust", **options) -> Identification:
         Robust only: ``max_modes`` (12), ``ar_order`` (32: whitening AR order, 0 disables),
         ``t_min`` (5.0: least |gain| / std kept), ``scan`` (True: add modes the pencil missed),
         ``max_nfev`` / ``final_nfev`` (40 / 15: evaluations per refinement in the search / final
-        stage), ``stage_rows`` (150000: samples used by the search stage), ``periodic`` ("auto",
+        stage), ``stage_rows`` (150000: samples of the search stage, a contiguous stretch of the log
+        starting ``stage_history`` (4096) samples before its first seek), ``periodic`` ("auto",
         None or a period in samples: repeatable run-out), ``periodic_harmonics`` (10),
         ``nw_lags`` (32: Newey-West lags).
 
@@ -226,7 +227,7 @@ def identify(log: SeekLog, method: str = "robust", **options) -> Identification:
         raise ValueError(f"method must be 'robust' or 'paper', got {method!r}")
     fs = log.sample_rate_hz
     opts = dict(holdout_every=5, freq_range=(100.0, 0.47 * fs), max_modes=12, ar_order=32, t_min=5.0,
-                scan=True, max_nfev=40, final_nfev=15, stage_rows=150_000, periodic="auto",
+                scan=True, max_nfev=40, final_nfev=15, stage_rows=150_000, stage_history=4096, periodic="auto",
                 periodic_harmonics=10, nw_lags=32, prony_order=8)
     unknown = set(options) - set(opts)
     if unknown:
@@ -271,11 +272,20 @@ def _drop(x, keep):
     return np.r_[x[:R][keep], x[R:2 * R][keep], x[2 * R]]
 
 
-def _thin(segs, max_rows):
-    """Every k-th segment so that at most ``max_rows`` samples remain (for the search stages)."""
+def _stage(segs, max_rows, history):
+    """The search stage's data: the first fitted seeks holding about ``max_rows`` samples, as a
+    contiguous stretch of the log that starts ``history`` samples before the first of them (the
+    mode filters start there in the steady state of the current).  Returns ``(i0, i1, segments)``
+    with the segments relative to ``i0``; the whole log when it is small enough."""
     total = sum(b - a for a, b in segs)
-    k = max(1, int(math.ceil(total / max_rows)))
-    return segs[::k]
+    if total <= max_rows:
+        return 0, None, segs
+    n, acc = 0, 0
+    while n < len(segs) and acc < max_rows:
+        acc += segs[n][1] - segs[n][0]
+        n += 1
+    i0 = max(segs[0][0] - history, 0)
+    return i0, segs[n - 1][1], [(a - i0, b - i0) for a, b in segs[:n]]
 
 
 def _identify_robust(log: SeekLog, fit_seeks, opts, timing) -> Identification:
@@ -317,15 +327,19 @@ def _identify_robust(log: SeekLog, fit_seeks, opts, timing) -> Identification:
     def refine(vp, x, nfev=opts["max_nfev"]):
         return vp.fit(x, *bounds(x), max_nfev=nfev)
 
-    def make(seg, x, nuis, white=True):
-        """The OE problem on ``seg``; whitened by an AR model of its residual at ``x``."""
-        vp = VarPro(u, y, dt, seg, nuisance=nuis)
+    def make(data, x, nuis, white=True):
+        """The OE problem ``data = (i0, i1, segments)``, whitened by an AR model of its residual at
+        ``x``; returns (whitened, unwhitened)."""
+        i0, i1, seg = data
+        uu, yy = u[i0:i1], y[i0:i1]
+        Z = None if nuis is None else periodic_columns(len(uu), nuis, opts["periodic_harmonics"], offset=i0)
+        vp = VarPro(uu, yy, dt, seg, nuisance=Z)
         if not (white and opts["ar_order"]):
             return vp, vp
         b = vp.proj.bounds
         r = vp.solve(x)[2]
         ar = ar_whitener([r[b[i]:b[i + 1]] for i in range(len(b) - 1)], int(opts["ar_order"]))
-        return VarPro(u, y, dt, seg, ar=ar, nuisance=nuis), vp
+        return VarPro(uu, yy, dt, seg, ar=ar, nuisance=Z), vp
 
     def prune(vp, x):
         """Drop the least significant mode while any |gain|/std < t_min, and near-duplicates."""
@@ -348,8 +362,8 @@ def _identify_robust(log: SeekLog, fit_seeks, opts, timing) -> Identification:
     # (b) search stage on at most stage_rows samples: OE from the pencil poles, AR whitening, the scan
     # for modes the settle windows did not show; then the repeatable run-out (period detected in the
     # residual of the model with its modes) as nuisance columns, and the scan again
-    sub = _thin(segs, opts["stage_rows"])
-    vp0 = VarPro(u, y, dt, sub)
+    sub = _stage(segs, opts["stage_rows"], opts["stage_history"])
+    vp0 = make(sub, x, None, white=False)[0]
     if len(x) > 1:
         x = refine(vp0, x)
     ppo["OE from pencil"] = list(zip(*VarPro.unpack(x)[:2]))
@@ -408,7 +422,7 @@ def _identify_robust(log: SeekLog, fit_seeks, opts, timing) -> Identification:
         period = int(opts["periodic"])
     diag.update(periodic_period_samples=period, periodic_F=fstat)
     if period:
-        nuis = periodic_columns(log.n, period, opts["periodic_harmonics"])
+        nuis = period
         vp, vp0 = make(sub, x, nuis)
         if len(x) > 1:
             x = prune(vp, refine(vp, x))
@@ -416,7 +430,7 @@ def _identify_robust(log: SeekLog, fit_seeks, opts, timing) -> Identification:
     diag["scan_added"], diag["tabu_hz"] = added, tabu
     lap("scan")
     # final stage on all fit seeks: AR model from the OE residual, refine, prune, covariance
-    vp, vp0 = make(segs, x, nuis)
+    vp, vp0 = make((0, None, segs), x, nuis)
     if len(x) > 1:
         x = prune(vp, refine(vp, x, opts["final_nfev"]))
     while True:                                     # covariance; drop modes not significant in it
@@ -457,7 +471,7 @@ def _identify_robust(log: SeekLog, fit_seeks, opts, timing) -> Identification:
                 std_inflation_max=float(np.max(infl)), whitened_residual_rms=float(np.sqrt(np.mean(r ** 2))),
                 t_stat=[float(v) for v in np.abs(c[2:2 + R]) / np.maximum(np.sqrt(np.diag(cc)[2:2 + R]), 1e-300)],
                 rigid_init={"k0": rf.k0, "bias_a": rf.bias_a, "delay_s": rf.delay_s},
-                n_fit_rows=int(vp.proj.n_rows), n_stage_rows=int(sum(b - a for a, b in sub)),
+                n_fit_rows=int(vp.proj.n_rows), n_stage_rows=int(sum(b - a for a, b in sub[2])),
                 nfev=vp.nfev + vp0.nfev)
     lap("final")
     return Identification(plant, "robust", ppo, residual_rms=float(np.sqrt(np.mean(r_oe ** 2))), diagnostics=diag)

@@ -15,7 +15,10 @@ Stages, each timed and reported; a failing stage stops the demo with a one-line
 6. **export** -- C, CSV and JSON firmware tables (:mod:`seekopt.export`);
 7. **report** -- ``report.md`` (+ ``report.html``) with figures, and a summary table printed.
 
-Everything is written under the output folder (default ``./seekopt-out``).
+Everything is written under the output folder (default ``./seekopt-out``); a sweep folder left
+there by an earlier demo with another plant or settings is moved aside (``sweep-<hash>``), one with
+the same settings is resumed.  The drive's controller is taken to be the NSS benchmark controller
+(the one the bundled log was recorded with).
 """
 from __future__ import annotations
 
@@ -166,14 +169,32 @@ def _bench_on(plant, controller, profiles, settle, k0):
     return rows
 
 
+def _set_aside_other_sweep(sweep_dir: Path, config_hash: str) -> None:
+    """A sweep folder of an earlier demo with another plant or settings is renamed, not reused."""
+    meta = sweep_dir / "sweep.json"
+    if not meta.exists():
+        return
+    try:
+        old = json.loads(meta.read_text()).get("config_hash", "unknown")
+    except ValueError:
+        old = "unreadable"
+    if old != config_hash:
+        dest = sweep_dir.with_name(f"sweep-{old}")
+        if dest.exists():
+            dest = sweep_dir.with_name(f"sweep-{old}-{int(time.time())}")
+        sweep_dir.rename(dest)
+        print(f"      (an earlier sweep with other settings moved to {dest})", flush=True)
+
+
 def _design_and_sweep(cfg, run, pool, plant, truth, controller, native, sweep_dir):
     """Stages 4 and 5: bench at the log's TPI, then the small sweep (reusing the bench cells)."""
     import pandas as pd
     from .profiles import Profile
-    from .sweep import SweepConfig, baseline_profile, cell_key, load_cells, run_sweep
+    from .sweep import ALL_KINDS, SweepConfig, baseline_profile, cell_key, load_cells, run_sweep
     with run.stage("design and bench against sine / windowed sine") as rec:
         bcfg = SweepConfig(plant, controller, [native], list(cfg.lengths), cfg.imax, cfg.settle,
-                           designer=cfg.designer)
+                           designer=cfg.designer, kinds=ALL_KINDS)
+        _set_aside_other_sweep(sweep_dir, bcfg.hash())
         bs = run_sweep(bcfg, sweep_dir, executor=pool, figures=False)
         cells = load_cells(sweep_dir)
         bench = pd.read_csv(bs.table)
@@ -188,13 +209,15 @@ def _design_and_sweep(cfg, run, pool, plant, truth, controller, native, sweep_di
                 for kind in ("sine", "windowed_sine"):
                     profs.append((L, kind, baseline_profile(plant, controller.sample_rate_hz, kind, L,
                                                             cfg.imax, cfg.settle)))
+                for kind, d in sorted(c.get("tuned_profiles", {}).items()):
+                    profs.append((L, kind, Profile.from_dict(d)))
             truth_rows = _bench_on(truth, controller, profs, cfg.settle, plant.k0)
         rec[3] = f"{len(bcfg.tracks)} lengths, {len(bs.failed_cells)} failed cells"
 
     with run.stage("small TPI sweep") as rec:
         tpis = [round(native * f) for f in cfg.sweep_tpi_factors]
         scfg = SweepConfig(plant, controller, tpis, sorted(set(cfg.sweep_lengths) | set(cfg.lengths)),
-                           cfg.imax, cfg.settle, designer=cfg.designer)
+                           cfg.imax, cfg.settle, designer=cfg.designer, kinds=ALL_KINDS)
         ss = run_sweep(scfg, sweep_dir, executor=pool, figures=True,
                        progress=True)
         sweep_df = pd.read_csv(ss.table)
@@ -283,20 +306,24 @@ def run_demo(cfg: DemoConfig) -> dict:
 
 # ------------------------------------------------------------------ report
 def _summary_table(bench, truth_rows):
+    """One row per (seek length, profile): seek time and seek-settle time [ms] on the identified
+    plant and, when known, on the truth plant."""
     import pandas as pd
-    from .report import seek_settle_s
+    from .report import KIND_LABELS, seek_settle_s
+    from .sweep import ALL_KINDS
     b = bench.copy()
-    b["seek_settle_ms"] = 1e3 * seek_settle_s(b)
-    t = b.pivot_table(index="tracks", columns="kind", values="seek_settle_ms", aggfunc="first", dropna=False)
-    t.columns = [f"{c} [ms]" for c in t.columns]
+    b["settle_ms"] = 1e3 * seek_settle_s(b)
+    out = pd.DataFrame({"tracks": b["tracks"], "kind": b["kind"], "seek [ms]": 1e3 * b["seek_time_s"],
+                        "seek-settle, model [ms]": b["settle_ms"]})
     if truth_rows:
-        tr = pd.DataFrame(truth_rows)
-        tr["status"] = "ok"
-        tr["seek_settle_ms"] = 1e3 * seek_settle_s(tr)
-        tt = tr.pivot_table(index="tracks", columns="kind", values="seek_settle_ms", aggfunc="first", dropna=False)
-        for c in tt.columns:
-            t[f"{c} on truth [ms]"] = tt[c]
-    return t.reset_index().round(3)
+        tr = pd.DataFrame(truth_rows).assign(status="ok")
+        tr["truth"] = 1e3 * seek_settle_s(tr)
+        out = out.merge(tr[["tracks", "kind", "truth"]], on=["tracks", "kind"], how="left")
+        out = out.rename(columns={"truth": "seek-settle, truth [ms]"})
+    out["order"] = [ALL_KINDS.index(k) for k in out["kind"]]
+    out = out.sort_values(["tracks", "order"]).drop(columns="order")
+    out["kind"] = [KIND_LABELS.get(k, k) for k in out["kind"]]
+    return out.rename(columns={"kind": "profile"}).reset_index(drop=True).round(3)
 
 
 def _plot_frf(plant, truth, path):

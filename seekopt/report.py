@@ -21,8 +21,11 @@ __all__ = ["seek_settle_s", "plot_sweep", "plot_seek_settle_vs_length", "plot_ga
            "KIND_LABELS"]
 
 KIND_LABELS = {"optimal": "optimal", "sine": "sine", "windowed_sine": "windowed sine",
+               "sine_tuned": "sine (best T)", "windowed_sine_tuned": "windowed sine (best T)",
                "bang_bang": "bang-bang"}
-_KIND_STYLE = {"optimal": ("C3", "-", "o"), "sine": ("C0", "--", "s"), "windowed_sine": ("C2", ":", "^")}
+_KIND_STYLE = {"optimal": ("C3", "-", "o"), "sine": ("C0", "--", "s"), "windowed_sine": ("C2", ":", "^"),
+               "sine_tuned": ("C1", "-.", "D"), "windowed_sine_tuned": ("C4", (0, (5, 1, 1, 1)), "v")}
+_BASELINES = ("sine", "windowed_sine", "sine_tuned", "windowed_sine_tuned")
 
 
 def _plt():
@@ -65,8 +68,12 @@ def plot_seek_settle_vs_length(df, path) -> Path:
     kinds = [k for k in _KIND_STYLE if k in set(df["kind"])]
     tpis = sorted(set(df["tpi"]))
     col = _tpi_colors(tpis)
-    fig, axes = plt.subplots(1, len(kinds), figsize=(4.2 * len(kinds), 4.0), sharey=True, squeeze=False)
-    for ax, kind in zip(axes[0], kinds):
+    ncol = min(3, len(kinds))
+    nrow = math.ceil(len(kinds) / ncol)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(4.2 * ncol, 3.6 * nrow + 0.4), sharey=True, squeeze=False)
+    for ax in list(axes.flat)[len(kinds):]:
+        ax.set_visible(False)
+    for ax, kind in zip(axes.flat, kinds):
         for tpi in tpis:
             d = df[(df["kind"] == kind) & (df["tpi"] == tpi)].sort_values("tracks")
             ax.plot(d["tracks"], 1e3 * d["seek_settle_s"], "-o", ms=3, color=col[tpi], label=_tpi_label(tpi))
@@ -77,16 +84,18 @@ def plot_seek_settle_vs_length(df, path) -> Path:
         ax.set_title(KIND_LABELS.get(kind, kind))
         ax.set_xlabel("seek length [track]")
         ax.grid(True, which="both", alpha=0.3)
-    axes[0][0].set_ylabel("seek-settle time [ms]  (dotted: bang-bang bound $T_{bb}$)")
-    axes[0][-1].legend(fontsize=7, title="track density", title_fontsize=7, loc="upper left")
-    fig.suptitle("Seek-settle time vs seek length (missing point: not settled or failed)", fontsize=10)
+    for row in axes:
+        row[0].set_ylabel("seek-settle time [ms]")
+    axes[0][0].legend(fontsize=7, title="track density", title_fontsize=7, loc="upper left")
+    fig.suptitle("Seek-settle time vs seek length (dotted: rigid-body bang-bang bound $T_{bb}$; "
+                 "missing point: not settled or failed)", fontsize=10)
     fig.tight_layout()
     return _save(fig, path)
 
 
 def savings_table(df):
-    """Per (tpi, tracks): seek-settle times of each kind and the optimal's saving [%] over
-    sine, windowed sine and the better of the two."""
+    """Per (tpi, tracks): seek-settle times of each kind and the optimal's saving [%] over each
+    baseline kind and over the best baseline of that cell (``saving_vs_best_pct``)."""
     import pandas as pd
     df = _with_t(df)
     wide = df.pivot_table(index=["tpi", "tracks"], columns="kind", values="seek_settle_s", aggfunc="first", dropna=False)
@@ -94,10 +103,10 @@ def savings_table(df):
     for k in wide.columns:
         out[f"{k}_ms"] = 1e3 * wide[k]
     if "optimal" in wide.columns:
-        for k in ("sine", "windowed_sine"):
+        for k in _BASELINES:
             if k in wide.columns:
                 out[f"saving_vs_{k}_pct"] = 100.0 * (1.0 - wide["optimal"] / wide[k])
-        base = [k for k in ("sine", "windowed_sine") if k in wide.columns]
+        base = [k for k in _BASELINES if k in wide.columns]
         if base:
             out["saving_vs_best_pct"] = 100.0 * (1.0 - wide["optimal"] / wide[base].min(axis=1, skipna=False))
     return out.reset_index()
@@ -109,10 +118,11 @@ def plot_gain_over_baselines(df, path) -> Path:
     s = savings_table(df)
     tpis = sorted(set(s["tpi"]))
     col = _tpi_colors(tpis)
-    bases = [k for k in ("sine", "windowed_sine") if f"saving_vs_{k}_pct" in s]
-    fig, axes = plt.subplots(1, max(len(bases), 1), figsize=(5.0 * max(len(bases), 1), 4.0),
-                             sharey=True, squeeze=False)
-    for ax, k in zip(axes[0], bases):
+    bases = [k for k in _BASELINES if f"saving_vs_{k}_pct" in s]
+    ncol = 2 if len(bases) == 4 else max(min(len(bases), 3), 1)
+    nrow = max(math.ceil(len(bases) / ncol), 1)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(4.6 * ncol + 0.4, 3.6 * nrow), sharey=True, squeeze=False)
+    for ax, k in zip(axes.flat, bases):
         for tpi in tpis:
             d = s[s["tpi"] == tpi].sort_values("tracks")
             ax.plot(d["tracks"], d[f"saving_vs_{k}_pct"], "-o", ms=3, color=col[tpi], label=_tpi_label(tpi))
@@ -125,14 +135,16 @@ def plot_gain_over_baselines(df, path) -> Path:
         ax.set_title(f"optimal vs {KIND_LABELS[k]}")
         ax.set_xlabel("seek length [track]")
         ax.grid(True, which="both", alpha=0.3)
-    axes[0][0].set_ylabel("seek-settle time saved [%]  (> 0: optimal faster)")
+    for row in axes:
+        row[0].set_ylabel("time saved by optimal [%]")
     axes[0][-1].legend(fontsize=7, title="track density", title_fontsize=7)
+    fig.suptitle("Seek-settle time saved by the optimal profile (> 0: optimal faster)", fontsize=10)
     fig.tight_layout()
     return _save(fig, path)
 
 
 def plot_heatmap(df, path, column: str = "saving_vs_best_pct") -> Path:
-    """Heatmap over (TPI, seek length) of the optimal's saving over the better baseline [%]."""
+    """Heatmap over (TPI, seek length) of the optimal's saving over the best baseline [%]."""
     plt = _plt()
     s = savings_table(df)
     if column not in s:
@@ -147,16 +159,17 @@ def plot_heatmap(df, path, column: str = "saving_vs_best_pct") -> Path:
                    cmap="RdBu" if pct else "viridis", vmin=-lim if pct else None, vmax=lim if pct else None)
     im.set_cmap(im.cmap.with_extremes(bad="0.85"))
     for (i, j), v in np.ndenumerate(vals):
+        dark = math.isfinite(v) and pct and abs(v) > 0.6 * lim
         ax.text(j, i, "×" if not math.isfinite(v) else f"{v:.0f}" if pct else f"{v:.2g}",
-                ha="center", va="center", fontsize=7)
+                ha="center", va="center", fontsize=7, color="white" if dark else "black")
     ax.set_xticks(range(grid.shape[1]), [f"{t:g}" for t in grid.columns], rotation=45)
     ax.set_yticks(range(grid.shape[0]), [_tpi_label(t) for t in grid.index])
     ax.set_xlabel("seek length [track]")
     ax.set_ylabel("track density")
-    label = {"saving_vs_best_pct": "time saved vs better baseline [%]"}.get(column, column)
+    label = {"saving_vs_best_pct": "time saved vs best baseline [%]"}.get(column, column)
     fig.colorbar(im, ax=ax, label=label)
-    ax.set_title("Seek-settle time saved by the optimal profile\nover the better of sine / windowed sine"
-                 " (× : no settled result)", fontsize=9)
+    ax.set_title("Seek-settle time saved by the optimal profile over the best baseline\n"
+                 "of the cell (× : no settled result)", fontsize=9)
     fig.tight_layout()
     return _save(fig, path)
 
@@ -176,7 +189,7 @@ def plot_vs_tpi(df, path, max_lengths: int = 6) -> Path:
         for kind, (c, ls, mk) in _KIND_STYLE.items():
             d = df[(df["kind"] == kind) & (df["tracks"] == L)].sort_values("tpi")
             if len(d):
-                ax.plot(d["tpi"] / 1e3, 1e3 * d["seek_settle_s"], ls, marker=mk, ms=3, color=c,
+                ax.plot(d["tpi"] / 1e3, 1e3 * d["seek_settle_s"], linestyle=ls, marker=mk, ms=3, color=c,
                         label=KIND_LABELS[kind])
         d = df[(df["tracks"] == L)].drop_duplicates("tpi").sort_values("tpi")
         ax.plot(d["tpi"] / 1e3, 1e3 * d["t_bb_s"].astype(float), color="0.5", lw=0.8, label="$T_{bb}$")

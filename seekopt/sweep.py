@@ -61,10 +61,14 @@ from .profiles import t_bang_bang
 __all__ = ["SweepError", "SweepConfig", "SweepSummary", "parse_tpi", "parse_tracks", "cell_key",
            "compute_cell", "run_sweep", "evaluate", "make_pool", "assemble", "load_cells",
            "BaselineDesigner", "baseline_profile", "controller_at_tpi", "write_atomic",
-           "KINDS", "TIMING_COLUMNS", "COLUMNS"]
+           "tuned_baseline", "code_hash", "KINDS", "ALL_KINDS", "TUNE_FACTORS", "TIMING_COLUMNS", "COLUMNS"]
 
-#: Profile kinds of a sweep, in table order.
+#: Default profile kinds of a sweep, in table order.
 KINDS = ("optimal", "sine", "windowed_sine")
+#: All kinds: ``*_tuned`` are the baselines at the duration (from :data:`TUNE_FACTORS` times the
+#: shortest within Imax) that minimises their seek-settle time on the design plant.
+ALL_KINDS = KINDS + ("sine_tuned", "windowed_sine_tuned")
+TUNE_FACTORS = (1.0, 1.25, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 8.0)
 #: Columns whose values depend on the machine and load (excluded from determinism checks).
 TIMING_COLUMNS = ("solve_time_s", "eval_time_s")
 _METRICS = ("seek_time_s", "settle_time_s", "peak_pes_after_track", "rms_pes_after_track",
@@ -130,6 +134,23 @@ def cell_key(tpi: float, tracks: float) -> str:
     return f"tpi{_fmt(tpi)}_k{_fmt(tracks)}"
 
 
+_CODE = ("seekopt.ocp", "seekopt.qp", "seekopt.metrics", "seekopt.simulate", "seekopt.profiles",
+         "seekopt.bench", "seekopt.controller", "identification.plant", "identification.effects")
+
+
+def code_hash() -> str:
+    """Hash of the sources that produce a cell's numbers (provenance; a resumed sweep warns when
+    its saved cells came from other code)."""
+    import hashlib
+    import importlib.util
+    h = hashlib.sha256()
+    for name in _CODE:
+        spec = importlib.util.find_spec(name)
+        if spec and spec.origin and os.path.exists(spec.origin):
+            h.update(name.encode() + Path(spec.origin).read_bytes())
+    return h.hexdigest()[:12]
+
+
 # ------------------------------------------------------------------ configuration
 @dataclass
 class SweepConfig:
@@ -153,7 +174,7 @@ class SweepConfig:
         (:class:`BaselineDesigner`, for testing the machinery) or ``"module:attr"``,
         a factory ``f(plant, controller, imax, settle) -> obj`` with ``obj.design(tracks)``.
     kinds : tuple of str
-        Subset of :data:`KINDS`.
+        Subset of :data:`ALL_KINDS` (default :data:`KINDS`).
     """
 
     plant: ModalPlant
@@ -172,9 +193,9 @@ class SweepConfig:
             raise SweepError("plant has no track_pitch_nm; a TPI sweep needs the physical gain")
         if not (self.imax > 0 and self.settle > 0):
             raise SweepError("--imax and --settle must be positive")
-        bad = [k for k in self.kinds if k not in KINDS]
+        bad = [k for k in self.kinds if k not in ALL_KINDS]
         if bad:
-            raise SweepError(f"unknown profile kind {bad[0]!r} (known: {', '.join(KINDS)})")
+            raise SweepError(f"unknown profile kind {bad[0]!r} (known: {', '.join(ALL_KINDS)})")
         self.tpis, self.tracks = parse_tpi(",".join(map(repr, self.tpis))), parse_tracks(self.tracks)
 
     def identity(self) -> dict:
@@ -194,7 +215,7 @@ class SweepConfig:
         d = self.identity()
         d.update(tpis=list(self.tpis), tracks=list(self.tracks), config_hash=self.hash(),
                  plant_hash=self.plant.hash(), controller_hash=self.controller.hash(),
-                 tool_version=__version__, schema=1)
+                 tool_version=__version__, code_hash=code_hash(), schema=1)
         return d
 
     @classmethod
@@ -270,6 +291,27 @@ def baseline_profile(plant: ModalPlant, fs: float, kind: str, tracks: float, ima
     return _baseline(plant, fs, kind, tracks, imax, settle)
 
 
+def tuned_baseline(plant, controller, kind: str, tracks: float, imax: float, settle: float,
+                   horizon_s=None, factors=TUNE_FACTORS):
+    """The ``kind`` baseline (same shape and rigid-model reference as :func:`baseline_profile`) at
+    the duration ``round(f * n0)``, ``f`` in ``factors``, ``n0`` the shortest within ``imax``, with
+    the least seek-settle time on ``plant`` (ties: the shorter).  Returns ``(profile, metrics, n_tried)``."""
+    from .profiles import finish_profile, shortest_baseline, sine_profile, windowed_sine_profile
+    shape = {"sine": sine_profile, "windowed_sine": windowed_sine_profile}[kind]
+    fs = controller.sample_rate_hz
+    n0 = len(shortest_baseline(kind, tracks, plant.k0, fs, imax))
+    rigid = ModalPlant(k0=plant.k0, delay_s=plant.total_delay_s)
+    best = None
+    ns = sorted({max(2, int(round(f * n0))) for f in factors})
+    for n in ns:
+        prof = finish_profile(shape(tracks, n / fs, plant.k0, fs), tracks, fs, imax, rigid, kind,
+                              settle_track=settle, meta={"plant_hash": plant.hash()})
+        m = evaluate(plant, controller, prof, settle, horizon_s, plant.k0)
+        if best is None or m["settle_time_s"] < best[1]["settle_time_s"]:
+            best = (prof, m)
+    return best[0], best[1], len(ns)
+
+
 # ------------------------------------------------------------------ one cell (runs in workers)
 _LOCK = threading.Lock()          # Ipopt/MUMPS is not thread-safe: one cell at a time per process
 _OBJECTS: dict = {}                # per process: plants and controllers per (config, TPI)
@@ -332,7 +374,7 @@ def compute_cell(payload: dict) -> dict:
                                       if cfgd.get("scale_controller", True) else 1.0),
                   "tracks": tracks, "designer": cfgd["designer"],
                   "t_bb_s": t_bang_bang(tracks, plant.k0, imax)}
-        rows, opt = [], None
+        rows, opt, tuned = [], None, {}
         for kind in cfgd["kinds"]:
             row = dict(common, kind=kind, status="ok", error="", design_status="", solver="",
                        objective=None, solve_time_s=None, n_samples=None, eval_time_s=None)
@@ -346,13 +388,21 @@ def compute_cell(payload: dict) -> dict:
                     row.update(design_status=str(res.status), solver=str(res.solver),
                                objective=str(res.objective), solve_time_s=_f(res.solve_time_s))
                     opt = prof
+                elif kind.endswith("_tuned"):
+                    t0 = time.perf_counter()
+                    prof, m, n_tried = tuned_baseline(plant, ctrl, kind[:-6], tracks, imax, settle,
+                                                      cfgd.get("horizon_s"))
+                    tuned[kind] = prof
+                    row.update(design_status="baseline", solver="duration_scan",
+                               objective=f"best of {n_tried} durations", eval_time_s=time.perf_counter() - t0)
                 else:
                     prof = baseline_profile(plant, fs, kind, tracks, imax, settle)
                     row.update(design_status="baseline", solver="shortest_baseline")
                 row["n_samples"] = int(prof.n)
-                t0 = time.perf_counter()
-                m = evaluate(plant, ctrl, prof, settle, cfgd.get("horizon_s"), plant.k0)
-                row["eval_time_s"] = time.perf_counter() - t0
+                if not kind.endswith("_tuned"):
+                    t0 = time.perf_counter()
+                    m = evaluate(plant, ctrl, prof, settle, cfgd.get("horizon_s"), plant.k0)
+                    row["eval_time_s"] = time.perf_counter() - t0
                 row.update({k: (bool(m[k]) if k == "settled" else _f(m[k])) for k in _METRICS})
             except Exception as exc:  # noqa: BLE001 - a failing cell is data, not a crash
                 row.update(status="infeasible" if type(exc).__name__ == "DesignInfeasible" else "error",
@@ -361,8 +411,9 @@ def compute_cell(payload: dict) -> dict:
         if opt is not None:
             opt.meta.update(plant_hash=plant.hash(), controller_hash=ctrl.hash(), tpi=tpi)
         return {"key": cell_key(tpi, tracks), "tpi": tpi, "tracks": tracks, "config_hash": h,
-                "computation_id": uuid.uuid4().hex, "pid": os.getpid(), "rows": rows,
-                "optimal_profile": None if opt is None else opt.to_dict()}
+                "code_hash": cfgd.get("code_hash"), "computation_id": uuid.uuid4().hex, "pid": os.getpid(),
+                "rows": rows, "optimal_profile": None if opt is None else opt.to_dict(),
+                "tuned_profiles": {k: p.to_dict() for k, p in tuned.items()}}
 
 
 def _f(x):
@@ -431,6 +482,10 @@ def _prepare(cfg: SweepConfig, outdir: Path) -> dict:
         if old.get("config_hash") != cfg.hash():
             raise SweepError(f"{outdir}: holds a sweep with another plant/controller/imax/settle/designer "
                              f"({old.get('config_hash')} != {cfg.hash()}); use another results folder")
+        if old.get("code_hash") not in (None, code_hash()):
+            print(f"sweep: warning: {outdir} was computed with other seekopt code (code hash "
+                  f"{old.get('code_hash')} != {code_hash()}); its saved cells are reused as they are - "
+                  "use a new results folder to recompute them", file=sys.stderr)
     write_atomic(meta, json.dumps(cfg.to_dict(), indent=1))
     return {k: c for k, c in load_cells(outdir).items() if c.get("config_hash") == cfg.hash()}
 
@@ -588,9 +643,13 @@ def run_sweep(cfg: SweepConfig, outdir, *, engine: str = "process", workers: int
                                   if any(r["status"] != "ok" for r in c["rows"]))
     summary.table = assemble(outdir, cfg)
     if figures:
-        from .report import plot_sweep
         import pandas as pd
-        summary.figures = plot_sweep(pd.read_csv(summary.table), outdir / "figures")
+        from .report import plot_sweep
+        try:
+            summary.figures = plot_sweep(pd.read_csv(summary.table), outdir / "figures")
+        except Exception as exc:  # noqa: BLE001 - the table is saved; say so, do not lose the run
+            print(f"sweep: figures failed ({_one_line(exc)}); the table {summary.table} is complete",
+                  file=sys.stderr)
     return summary
 
 
@@ -609,7 +668,7 @@ def assemble(outdir, cfg: SweepConfig | None = None) -> Path:
             c = cells.get(cell_key(tpi, k))
             if c is None or c.get("config_hash") != cfgd["config_hash"]:
                 continue
-            rows += sorted(c["rows"], key=lambda r: KINDS.index(r["kind"]))
+            rows += sorted(c["rows"], key=lambda r: ALL_KINDS.index(r["kind"]))
             if c.get("optimal_profile"):
                 p = outdir / "profiles" / f"optimal_{c['key']}.csv"
                 if not p.exists():

@@ -233,5 +233,38 @@ def _e2e_rows(seed, drive, log, truth, ids):
     return rows
 
 
+def std_calibration_table(seeds=(0, 1, 2, 3), n_seeks=100, cache_dir=None):
+    """Are the reported standard deviations honest?  On the single-rate drive (no multirate model
+    error), default truth, benchmark noise: for every required truth mode (pooled settle-window
+    SNR >= 3) and each seed, ``z = (estimate - truth) / std``; the table gives the RMS of ``z`` per
+    parameter (1 if the std are right, > 1 if optimistic) and the largest ``|z|``.
+
+    Returns
+    -------
+    str
+        Markdown.
+    """
+    from identification.identify import identify
+    sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "tests"))
+    from test_identify import required_modes
+    z = {"freq_hz": [], "zeta": [], "gain": [], "k0": []}
+    for seed in seeds:
+        (log, truth), _ = _e2e_log(seed, n_seeks, "single-rate", cache_dir)
+        res = identify(log)
+        z["k0"].append((res.plant.k0 - truth.k0) / res.plant.std["k0"])
+        for m, _snr in required_modes(log, truth):
+            e = min(res.plant.modes, key=lambda q: abs(np.log(q.freq_hz / m.freq_hz)))
+            if abs(e.freq_hz / m.freq_hz - 1) > 0.01:
+                continue
+            for k in ("freq_hz", "zeta", "gain"):
+                z[k].append((getattr(e, k) - getattr(m, k)) / e.std[k])
+    out = [f"**Standard deviations vs actual errors**, single-rate drive, default truth, benchmark noise, "
+           f"{n_seeks} seeks, seeds {list(seeds)}", "", "| parameter | n | RMS z | max abs z |", "|---|---|---|---|"]
+    for k, v in z.items():
+        v = np.asarray(v)
+        out.append(f"| {k} | {len(v)} | {np.sqrt(np.mean(v ** 2)):.2f} | {np.max(np.abs(v)):.2f} |")
+    return "\n".join(out)
+
+
 if __name__ == "__main__":
     print(prony_vs_crb_table())

@@ -9,6 +9,7 @@ import pytest
 from identification.logs import read_log
 from seekopt import demo
 from seekopt.cli import main
+from seekopt.sweep import ALL_KINDS
 
 
 def test_bundled_sample_log():
@@ -27,7 +28,7 @@ def test_demo_quick_writes_report_with_figures(tmp_path, capsys):
     stdout = capsys.readouterr().out
     for i in range(1, 8):
         assert f"[{i}/7]" in stdout
-    assert "optimal [ms]" in stdout and "report:" in stdout
+    assert "seek-settle, truth [ms]" in stdout and "sine (best T)" in stdout and "report:" in stdout
     md = (out / "report.md").read_text()
     assert (out / "report.html").exists()
     figs = [line.split("](")[1].rstrip(")") for line in md.splitlines() if line.startswith("![")]
@@ -37,7 +38,7 @@ def test_demo_quick_writes_report_with_figures(tmp_path, capsys):
     for n in ("seekopt_tables.h", "seekopt_tables.c", "seekopt_tables.csv", "seekopt_tables.json"):
         assert (out / "export" / n).exists()
     df = pd.read_csv(out / "sweep" / "results.csv")
-    assert set(df["kind"]) == {"optimal", "sine", "windowed_sine"} and len(df) == 3 * 2 * 2
+    assert set(df["kind"]) == set(ALL_KINDS) and len(df) == len(ALL_KINDS) * 2 * 2
     assert json.loads((out / "plant.json").read_text())["k0"] > 0
 
 

@@ -19,7 +19,7 @@ import pytest
 
 from seekopt.controller import Controller
 from seekopt.presets import default_truth_plant
-from seekopt.sweep import (KINDS, TIMING_COLUMNS, SweepConfig, SweepError, cell_key, compute_cell,
+from seekopt.sweep import (ALL_KINDS, KINDS, TIMING_COLUMNS, TUNE_FACTORS, SweepConfig, SweepError, cell_key, compute_cell,
                            load_cells, parse_tpi, parse_tracks, run_sweep)
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -98,6 +98,14 @@ def test_cell_rows_and_tpi_scaling():
     assert rb["controller_gain"] / ra["controller_gain"] == pytest.approx(0.5, rel=1e-12)
     assert all(r["status"] == "ok" for r in a["rows"] + b["rows"])
     assert a["optimal_profile"]["tracks"] == 10.0
+
+
+def test_tuned_baselines_never_slower_than_shortest():
+    cfg = config(kinds=ALL_KINDS, tpis=[200e3])
+    rows = {r["kind"]: r for r in compute_cell({"config": cfg.to_dict(), "tpi": 200e3, "tracks": 100})["rows"]}
+    for k in ("sine", "windowed_sine"):
+        assert rows[f"{k}_tuned"]["settle_time_s"] <= rows[k]["settle_time_s"]
+        assert rows[f"{k}_tuned"]["objective"] == f"best of {len(TUNE_FACTORS)} durations"
 
 
 def test_designer_built_once_per_tpi():
