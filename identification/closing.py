@@ -42,6 +42,10 @@ __all__ = ["Step", "LoopResult", "close_loop", "Dependence", "dependence", "desc
 #: candidates that may be accepted more than once
 REPEATABLE = ("extra_mode",)
 
+#: free-form dependences along variables that no library effect models; a candidate that
+#: explains clearly less than one of them is a proxy and is not accepted
+OUT_OF_LIBRARY = ("gain_vs_time", "force_vs_time", "current_error_vs_current")
+
 SIMULATION_NOTE = ("each seek (target change to next target change) simulated with DiscretePlant "
                    "from rest at its start (previous current held), the initial position and "
                    "velocity fitted by least squares over the seek")
@@ -94,7 +98,10 @@ class LoopResult:
         return list(dict.fromkeys(s.effect for s in self.steps if s.accepted))
 
     def report(self) -> dict:
-        plant = self.plant.to_dict()
+        """The JSON report: ``plant`` (ModalPlant JSON, accepted effects included),
+        ``error_before``/``error_after`` (validation RMS [track], fit [%]), ``steps``,
+        ``unexplained``."""
+        plant = _jsonable(self.plant.to_dict())
         return {"plant": plant, "error_before": self.error_before, "error_after": self.error_after,
                 "steps": [s.to_dict() for s in self.steps], "unexplained": list(self.unexplained)}
 
@@ -273,6 +280,17 @@ def _spindle(plant: ModalPlant, res: Residual) -> tuple[float, str]:
     return (pk[0][0], "detected (harmonic-sum peak of the residual)") if pk else (float("nan"), "none")
 
 
+def sync_null(res: Residual, f0: float, n: int = 12) -> float:
+    """Median repeatable fraction of the synchronous average at ``n`` frequencies between
+    0.6 f0 and 1.6 f0 that are not near a harmonic of f0: what noise alone gives [-]."""
+    t, fs = res.log.time_s, res.log.sample_rate_hz
+    out = []
+    for f in np.linspace(0.6 * f0, 1.6 * f0, n + 3):
+        if min(abs(f / f0 - k) for k in (1,)) > 0.08:
+            out.append(synchronous_average(res.full(), t, res.windows, f, fs=fs)[3])
+    return float(np.median(out)) if out else 0.0
+
+
 def describe_residual(plant: ModalPlant, data: Data, res: Residual) -> dict:
     """Analyses of a residual ``res`` of ``plant`` on ``data`` (frozen on ``res``): correlations,
     spectra/coherence, synchronous average, nonlinear tests, dependence curves."""
@@ -284,6 +302,7 @@ def describe_residual(plant: ModalPlant, data: Data, res: Residual) -> dict:
            "spindle_source": src, "dependence": dependence(plant, data)}
     if math.isfinite(f0):
         out["sync"] = synchronous_average(ef, log.time_s, res.windows, f0, fs=log.sample_rate_hz)
+        out["sync_null"] = sync_null(res, f0)
     return out
 
 
@@ -314,6 +333,7 @@ def evidence_lines(plant: ModalPlant, data: Data, res: Residual) -> dict:
     pk = sp.coherent_peaks(max_peaks=3)
     d = deps["force_vs_position"]
     slope = np.polyfit(d.x, d.value, 1)[0] if len(d.x) > 1 else 0.0
+    null = sync_null(res, f0) if math.isfinite(f0) else float("nan")
     return {
         "input_delay": lag, "amplifier_lag": lag,
         "pivot_spring_damper": f"force error vs position: slope {1e3 * slope * 1e4:+.3g} mA per 10 ktrack "
@@ -323,7 +343,8 @@ def evidence_lines(plant: ModalPlant, data: Data, res: Residual) -> dict:
         "torque_constant_variation": _fmt_dep(deps["gain_vs_position"]),
         "current_saturation": _fmt_dep(deps["gain_vs_abs_current"]),
         "periodic_disturbance": "spindle not found" if sync is None else
-        f"spindle {f0:.2f} Hz ({src}): {100 * sync[3]:.1f} % of residual variance repeats per revolution",
+        f"spindle {f0:.2f} Hz ({src}): {100 * sync[3]:.1f} % of residual variance repeats per revolution "
+        f"({100 * null:.1f} % at non-harmonic frequencies)",
         "extra_mode": "residual-current coherence peaks: " + (", ".join(f"{f:.0f} Hz ({c:.2f})" for f, c in pk)
                                                              or "none above the null band"),
     }
@@ -337,7 +358,7 @@ def unexplained_lines(plant: ModalPlant, fdata: Data, vdata: Data, res: Residual
         if d.p < 1e-4 and d.val_drop >= min_val_drop:
             out.append(f"residual depends on {d.name.split('_vs_')[-1].replace('_', ' ')}: {_fmt_dep(d)}; "
                        f"a free-form correction fitted on the fit data lowers the validation RMS by "
-                       f"{100 * d.val_drop:.0f} % (no library effect does)")
+                       f"{100 * d.val_drop:.0f} % (no library effect accepted for it)")
     sp, cr = an["spectra"], an["corr"]
     pk = sp.coherent_peaks(max_peaks=3)
     if pk:
@@ -351,9 +372,10 @@ def unexplained_lines(plant: ModalPlant, fdata: Data, vdata: Data, res: Residual
     if len(v):
         out.append(f"residual correlated with past current at {len(v)} of 51 lags beyond Ljung's band "
                    f"+-{cr.cross_band:.3f} (closed loop: the current reacts to the noise)")
-    if "sync" in an and an["sync"][3] > 0.05:
+    if "sync" in an and an["sync"][3] > max(0.05, 3 * an["sync_null"]):
         out.append(f"{100 * an['sync'][3]:.0f} % of the residual variance repeats with the spindle at "
-                   f"{an['spindle_hz']:.2f} Hz ({an['spindle_source']})")
+                   f"{an['spindle_hz']:.2f} Hz ({an['spindle_source']}; {100 * an['sync_null']:.0f} % at "
+                   f"non-harmonic frequencies)")
     bad = [k for k, (m, b) in an["nonlinear"].items() if m > 3 * b]
     if bad:
         out.append("nonlinear correlation tests beyond 3x their band: " + ", ".join(bad))
@@ -398,7 +420,7 @@ def split_data(log: SeekLog, validation: SeekLog | None = None):
 
 def close_loop(log: SeekLog, model: ModalPlant, validation: SeekLog | None = None,
                candidates=None, min_drop: float = 0.05, min_bic: float = 10.0, min_seeks: float = 0.6,
-               max_steps: int = 6, verbose: bool = False) -> LoopResult:
+               proxy_margin: float = 0.05, max_steps: int = 6, verbose: bool = False) -> LoopResult:
     """Augment ``model`` with effects that the data support (see the module notes).
 
     Parameters
@@ -418,6 +440,10 @@ def close_loop(log: SeekLog, model: ModalPlant, validation: SeekLog | None = Non
     min_seeks : float
         Required fraction of validation seeks whose error the candidate lowers [-] (the RMS
         is dominated by the longest seeks; the improvement must be consistent).
+    proxy_margin : float
+        A candidate whose relative validation drop is smaller by more than this than that of
+        a free-form correction along a variable outside the library (:data:`OUT_OF_LIBRARY`)
+        is only a proxy for that structure and is not accepted [-].
     max_steps : int
         Maximum number of accepted effects.
     """
@@ -466,6 +492,14 @@ def close_loop(log: SeekLog, model: ModalPlant, validation: SeekLog | None = Non
         ok = [t for t in tried if t[1] is not None and t[0].bic_drop > min_bic
               and t[0].rms_after <= (1 - min_drop) * cur_val.rms and t[0].improved_fraction >= min_seeks]
         steps += [t[0] for t in tried]
+        if ok:      # is the best one only a proxy for structure outside the library?
+            best_drop = 1 - min(t[0].rms_after for t in ok) / cur_val.rms
+            free = [d for d in dependence(current, fdata, val.freeze(current, cur_val), OUT_OF_LIBRARY)
+                    if d.p < 1e-4 and d.val_drop > best_drop + proxy_margin]
+            if free:
+                say("  best candidate explains less than a free-form " + ", ".join(d.name for d in free)
+                    + " correction: not accepted")
+                break
         if not ok:
             break
         best, rf, rv = min(ok, key=lambda t: t[0].rms_after)

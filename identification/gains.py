@@ -230,7 +230,9 @@ class VarPro:
     FIR filter, so this removes ``p0_s, v0_s`` exactly).
 
     Nonlinear parameters ``x = [ln f_1..ln f_R, ln zeta_1..ln zeta_R, delay / dt]``; linear
-    coefficients ``c = [k0, k0 bias, k0 g_1..k0 g_R, rho]``.
+    coefficients ``c = [k0, k0 bias, k0 g_1..k0 g_R]``; the nuisance columns are projected out once
+    (Frisch-Waugh-Lovell: the same estimates and covariance as fitting ``rho`` jointly) and ``rho``
+    is available from :meth:`nuisance_coef`.
     """
 
     def __init__(self, current_a, position_track, dt: float, segments, ar=None, nuisance=None):
@@ -248,22 +250,48 @@ class VarPro:
         self.bias = bias_response(self.n, self.dt, self.starts)
         # whitening commutes with the (time-invariant) mode filters: whiten the current once
         self.uw = self.u if self.ar is None else fir_filter(self.ar, self.u, steady=True)
-        self.yt = self.transform(np.asarray(position_track, dtype=float))
-        self.Z = None if nuisance is None else self.transform(nuisance)
+        self.Z = self.Zq = None
+        self.y0 = self.transform(np.asarray(position_track, dtype=float))
+        self.yt = self.y0
+        if nuisance is not None:                # fixed columns: projected out once (Frisch-Waugh)
+            self.Z = self.transform(nuisance)
+            self.Zq = np.linalg.qr(self.Z)[0]
+            self.yt = self.y0 - self.Zq @ (self.Zq.T @ self.y0)
         self.nfev = 0
         self._last = (None, None)
 
     def transform(self, cols):
-        """Whiten, take the fit rows, project out the per-segment ``[1, t]``."""
+        """Whiten, take the fit rows, project out the per-segment ``[1, t]`` (and the nuisance
+        columns, once they are set)."""
         cols = np.asarray(cols, dtype=float)
         if self.ar is not None:
             cols = fir_filter(self.ar, cols)
-        return self.proj.project(self.proj.take(cols))
+        return self._project(self.proj.take(cols))
+
+    def _project(self, rows):
+        out = self.proj.project(rows)
+        if self.Zq is not None:
+            out = out - self.Zq @ (self.Zq.T @ out)
+        return out
+
+    def nuisance_coef(self, x):
+        """LS coefficients ``rho`` of the nuisance columns at ``x``:
+        ``rho = Z^+ (y - X c)`` without the nuisance projection (Frisch-Waugh-Lovell)."""
+        if self.Z is None:
+            return np.zeros(0)
+        _, c, _, _ = self.solve(x)
+        f, z, d = self.unpack(x)
+        Zq, self.Zq = self.Zq, None
+        try:
+            X0 = self.columns(f, z, d)
+        finally:
+            self.Zq = Zq
+        return np.linalg.lstsq(self.Z, self.y0 - X0 @ c, rcond=None)[0]
 
     def mode_columns(self, freqs, zetas, delay_samples):
         """Transformed unit-mode columns (the modes filter the whitened current)."""
         M = mode_regressors(self.uw, freqs, zetas, self.dt, delay_samples * self.dt)
-        return self.proj.project(self.proj.take(M))
+        return self._project(self.proj.take(M))
 
     def columns(self, freqs, zetas, delay_samples):
         """Transformed ``[rigid, bias, modes...]`` columns."""
@@ -279,14 +307,13 @@ class VarPro:
         return np.exp(x[:R]), np.exp(x[R:2 * R]), float(x[2 * R])
 
     def solve(self, x):
-        """``(X, c, r, Q)``: transformed columns (nuisance last), coefficients, residual, orthonormal basis."""
+        """``(X, c, r, Q)``: transformed columns, coefficients, residual, orthonormal column basis (the
+        nuisance columns are projected out of everything, so ``c`` holds no ``rho``)."""
         key = np.asarray(x, dtype=float).tobytes()
         if self._last[0] == key:
             return self._last[1]
         f, z, d = self.unpack(x)
         X = self.columns(f, z, d)
-        if self.Z is not None:
-            X = np.column_stack([X, self.Z])
         s = np.linalg.norm(X, axis=0)
         s[s == 0] = 1.0
         Q, Rm = np.linalg.qr(X / s)

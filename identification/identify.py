@@ -448,7 +448,7 @@ def _identify_robust(log: SeekLog, fit_seeks, opts, timing) -> Identification:
     f, z, d = VarPro.unpack(x)
     sd = np.sqrt(np.abs(np.diag(cov)))
     nx = len(x)
-    cc = cov[nx:, nx:]                              # covariance of c = [k0, k0 bias, k0 g, rho]
+    cc = cov[nx:, nx:]                              # covariance of c = [k0, k0 bias, k0 g]
 
     def ratio_std(i):                               # delta method: std of c_i / c_0
         gv = np.zeros(len(c))
@@ -463,7 +463,7 @@ def _identify_robust(log: SeekLog, fit_seeks, opts, timing) -> Identification:
                        std={"k0": float(sd[nx]), "bias_a": ratio_std(1), "delay_s": float(sd[2 * R] * dt)})
     r_oe = vp0.solve(x)[2]
     if nuis is not None:
-        rho = c[2 + R:]
+        rho = vp.nuisance_coef(x)
         diag["runout"] = {"period_samples": int(period), "cos_track": rho[0::2].tolist(),
                           "sin_track": rho[1::2].tolist()}
     infl = np.sqrt(np.diag(cov) / np.maximum(np.diag(cov_white), 1e-300))

@@ -176,7 +176,23 @@ def cmd_bench(args) -> int:
 
 
 def cmd_loop(args) -> int:
-    raise NotImplementedError("loop: not wired yet")
+    from identification.closing import close_loop
+    from identification.identify import identify
+    from identification.logs import read_log
+    from identification.loop_report import write_report
+    log = read_log(args.log)
+    val = read_log(args.validate) if args.validate else None
+    model = identify(log, method="robust").plant
+    try:
+        result = close_loop(log, model, validation=val)
+    except ValueError as exc:
+        raise UsageError(f"{args.log}: {exc}") from None
+    write_report(result, args.report, args.figures)
+    acc = ", ".join(result.accepted) or "none"
+    print(f"wrote {args.report}: validation rms {result.error_before['rms_track']:.4g} -> "
+          f"{result.error_after['rms_track']:.4g} track; accepted: {acc}; "
+          f"{len(result.unexplained)} unexplained item(s)")
+    return 0
 
 
 def cmd_sweep(args) -> int:

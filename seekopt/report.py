@@ -95,7 +95,7 @@ def plot_seek_settle_vs_length(df, path) -> Path:
 
 def savings_table(df):
     """Per (tpi, tracks): seek-settle times of each kind and the optimal's saving [%] over each
-    baseline kind and over the best baseline of that cell (``saving_vs_best_pct``)."""
+    baseline kind and over the best baseline of that cell that settled (``saving_vs_best_pct``)."""
     import pandas as pd
     df = _with_t(df)
     wide = df.pivot_table(index=["tpi", "tracks"], columns="kind", values="seek_settle_s", aggfunc="first", dropna=False)
@@ -108,7 +108,7 @@ def savings_table(df):
                 out[f"saving_vs_{k}_pct"] = 100.0 * (1.0 - wide["optimal"] / wide[k])
         base = [k for k in _BASELINES if k in wide.columns]
         if base:
-            out["saving_vs_best_pct"] = 100.0 * (1.0 - wide["optimal"] / wide[base].min(axis=1, skipna=False))
+            out["saving_vs_best_pct"] = 100.0 * (1.0 - wide["optimal"] / wide[base].min(axis=1, skipna=True))
     return out.reset_index()
 
 

@@ -4,10 +4,12 @@ One *cell* is a pair ``(tpi, tracks)``.  For each cell the plant is re-expressed
 at that TPI (:meth:`identification.plant.ModalPlant.at_tpi`: the physical gain in
 m/(A s^2) is kept, ``k0`` in track/(A s^2) scales with TPI, the settle band stays
 in tracks; the controller's gain in A/track is scaled with the track pitch so the
-physical loop is the same, see :func:`controller_at_tpi`), the optimal profile is designed (one pluggable call, default
-:class:`seekopt.ocp.SeekDesigner`), and the optimal, sine and windowed-sine
-profiles are evaluated side by side with :func:`seekopt.metrics.evaluate_profile`
-(which runs the one simulator, :func:`seekopt.simulate.simulate_2dof`).
+physical loop is the same, see :func:`controller_at_tpi`), the optimal profile is
+designed (one pluggable call, default :class:`seekopt.ocp.SeekDesigner`), and the
+optimal, sine and windowed-sine profiles (optionally also the baselines at their
+best duration, :data:`ALL_KINDS`) are evaluated side by side with
+:func:`seekopt.metrics.evaluate_profile` (the one simulator,
+:func:`seekopt.simulate.simulate_2dof`).
 
 Results folder layout
 ---------------------
@@ -18,7 +20,8 @@ Results folder layout
     ``os.replace``) by the driving process as soon as the cell completes: the
     table rows of that cell, the optimal profile and a computation id.
 ``journal.log``
-    Append-only, fsync'ed audit: one ``computed <key> <id>`` line per computation.
+    Append-only, fsync'ed audit: ``run <config> engine=... todo=... t=<unix time>`` per run and
+    ``computed <key> <id> t=<unix time>`` per computed cell.
 ``results.csv``
     The tidy table assembled from ``cells/`` (one row per cell x profile kind).
 ``profiles/``, ``figures/``
@@ -27,7 +30,8 @@ Results folder layout
 Re-running a sweep into the same folder resumes it: saved cells are read, not
 recomputed.  The grid may change between runs (cells are keyed by TPI and
 length); everything else (plant, controller, current limit, settle band,
-designer) must match, or :class:`SweepError` is raised.
+designer, kinds) must match, or :class:`SweepError` is raised; cells computed by
+other code (:func:`code_hash`) are reused with a warning.
 
 Engines: ``serial`` (in process), ``process`` (default; a local
 :class:`concurrent.futures.ProcessPoolExecutor`; Ipopt/MUMPS is not thread-safe,
@@ -451,7 +455,7 @@ def write_atomic(path: Path, text: str) -> None:
 def _journal(outdir: Path, line: str) -> None:
     fd = os.open(outdir / "journal.log", os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
     try:
-        os.write(fd, (line.rstrip("\n") + "\n").encode())
+        os.write(fd, f"{line.rstrip()} t={time.time():.3f}\n".encode())
         os.fsync(fd)
     finally:
         os.close(fd)

@@ -23,7 +23,6 @@ markers of ``docs/results_design.md``.
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import tempfile
 import time
@@ -40,7 +39,7 @@ from seekopt.controller import Controller  # noqa: E402
 from seekopt.metrics import evaluate_profile, simulate_profile  # noqa: E402
 from seekopt.ocp import RobustSpec, SeekDesigner  # noqa: E402
 from seekopt.presets import SEEK_MODES, default_truth_plant  # noqa: E402
-from seekopt.profiles import finish_profile, sine_profile, t_bang_bang, windowed_sine_profile  # noqa: E402
+from seekopt.profiles import finish_profile, sine_profile, windowed_sine_profile  # noqa: E402
 
 FIG = ROOT / "docs" / "figures" / "design"
 DOC = ROOT / "docs" / "results_design.md"

@@ -2,16 +2,17 @@
 
 Run::
 
-    python studies/solver_reuse.py [--repeat 5]
+    python studies/solver_reuse.py
 
 1. Reuse: one :class:`seekopt.ocp.SeekDesigner` (closed-loop maps, condensed matrices converted to
    ``casadi.DM`` and the ``casadi.conic`` solver built once per seek-size class) designs a list of
    seeks; naive: a new designer (everything rebuilt) per seek.  Same answers, wall time per design.
-2. Solvers on the same condensed QP (one bisection step of the K = 200 design, and the N = 120
-   min-residual QP of a 1000-track seek): ``casadi.conic`` plugins daqp, qpoases, highs, osqp,
-   proxqp and the ``Opti`` + Ipopt path (``hessian_constant``/``jac_*_constant`` = yes,
-   ``opti.to_function``), solver built once, median of ``--repeat`` solves; also Opti rebuilt per
-   solve.
+2. Solvers on the designer's own condensed QP (a bisection sequence of the K = 200 design, nominal
+   and robust, and min-residual QPs of a 1000-track seek, N = 120, 110, 100): ``casadi.conic``
+   plugins daqp, qpoases, highs, osqp, proxqp and the ``Opti`` + Ipopt path
+   (``hessian_constant``/``jac_*_constant`` = yes, ``opti.to_function``), each built once and fed
+   the changing data (repeating identical data would flatter hot-starting solvers); also Opti
+   rebuilt for one solve.
 
 CPU times are process times (the machine is shared; wall times are noisier).  Writes the section
 between the ``solver_reuse`` markers of ``docs/results_design.md``.
@@ -64,39 +65,37 @@ def reuse_vs_rebuild(plant, ctrl, robust=None):
     return reuse, rebuild, builds_reuse, builds_rebuild
 
 
-def solver_table(plant, ctrl, K, N, nclass, beta, epigraph, repeat, robust=None):
+def solver_table(plant, ctrl, K, Ns, nclass, beta, epigraph, robust=None):
+    """Every solver on the designer's own condensed QP, built once, then a bisection-like sequence of
+    solves with changing data (settle sample ``N`` in ``Ns``): first (cold) solve and the rest."""
     d = SeekDesigner(plant, ctrl, IMAX, robust=robust)
-    s = d._structure(nclass, epigraph)          # the designer's own condensed problem
-    data = s.data(K, N, None if epigraph else beta, d.gamma, d.hf_tol, None)
-    rows = []
-    ref = None
+    s = d._structure(nclass, epigraph)
+    seq = [s.data(K, N, None if epigraph else beta, d.gamma, d.hf_tol, None) for N in Ns]
+    rows, ref = [], None
     for name in ("daqp", "qpoases", "highs", "osqp", "proxqp", "ipopt"):
         try:
             solver, tb, _ = timed(lambda: qpmod.make_qp_solver(s.n, s.m, name))
         except Exception as exc:  # noqa: BLE001
-            rows.append((name, f"build failed: {exc}"[:60], *[float("nan")] * 5))
+            rows.append((name, f"build failed: {exc}"[:60], *[float("nan")] * 7))
             continue
-        walls, cpus, sol = [], [], None
-        for _ in range(repeat):
-            sol = solver.solve(*data)
-            walls.append(sol.solve_time_s); cpus.append(sol.cpu_time_s)
-        viol = s.violation(sol.x, K, *data[3:]) if sol.success else float("nan")
-        obj = float(0.5 * sol.x @ (np.array(data[0]) @ sol.x) + np.asarray(data[1]) @ sol.x) if sol.success else float("nan")
-        if name == "daqp" and sol.success:
-            ref = sol.x
-        dx = float(np.max(np.abs(sol.x - ref))) if (ref is not None and sol.success) else float("nan")
-        rows.append((name, sol.status, tb, statistics.median(walls), statistics.median(cpus), viol, obj, dx))
-    # Opti + Ipopt rebuilt for every solve (no reuse)
-    walls = []
-    for _ in range(max(1, repeat // 2)):
-        (_, w, _) = timed(lambda: qpmod.IpoptQP(s.n, s.m).solve(*data))
-        walls.append(w)
-    return s, rows, statistics.median(walls)
+        sols = [solver.solve(*data) for data in seq]
+        last, data = sols[-1], seq[-1]
+        viol = s.violation(last.x, K, *data[3:]) if last.success else float("nan")
+        obj = (float(0.5 * last.x @ (np.array(data[0]) @ last.x) + np.asarray(data[1]) @ last.x)
+               if last.success else float("nan"))
+        if name == "daqp" and last.success:
+            ref = last.x
+        dx = float(np.max(np.abs(last.x - ref))) if (ref is not None and last.success) else float("nan")
+        ok = "/".join("ok" if x.success else ("inf" if x.infeasible else "FAIL") for x in sols)
+        rows.append((name, ok, tb, sols[0].cpu_time_s, statistics.mean(x.cpu_time_s for x in sols[1:]),
+                     statistics.mean(x.solve_time_s for x in sols[1:]), viol, obj, dx))
+    # Opti + Ipopt rebuilt for every solve (no reuse), last data set
+    (_, w, c) = timed(lambda: qpmod.IpoptQP(s.n, s.m).solve(*seq[-1]))
+    return s, rows, (w, c)
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--repeat", type=int, default=5)
     a = ap.parse_args(argv)
     truth, ctrl = default_truth_plant(), Controller.nss()
     plant = perturbed_plant(truth, ctrl.sample_rate_hz)
@@ -115,19 +114,24 @@ def main(argv=None) -> int:
                 f"{cn:.2f} s CPU with {bn} builds: **rebuild / reuse = {wn / wr:.1f}x wall, {cn / cr:.1f}x CPU**; "
                 f"identical seek-settle samples: {same}.", ""]
         print("\n".join(out[-(len(TRACKS) + 6):]), flush=True)
-    for title, K, N, ncls, epi, robust in (("K = 200, one bisection step (band QP, N = 40, class 48), nominal", 200.0, 40, 48, False, None),
-                                           ("K = 200, band QP N = 40, robust set of 11 plants", 200.0, 40, 48, False, "freq=3,zeta=30,gain=25,delay=3e-6,n=4"),
-                                           ("K = 1000, min-residual (epigraph) QP, N = 120, nominal", 1000.0, 120, 128, True, None)):
-        s, rows, rebuild_w = solver_table(plant, ctrl, K, N, ncls, 0.7, epi, a.repeat, robust)
-        out += [f"### QP solvers: {title}", "", f"Dense QP: n = {s.n} variables, m = {s.m} rows.", "",
-                "| solver | status | build s | solve wall ms (median) | solve CPU ms | max rel. violation | objective | max abs dx vs daqp |",
-                "|---|---|---|---|---|---|---|---|"]
+    cases = (("K = 200, min seek-settle bisection (band QP, class 48), nominal", 200.0, (48, 35, 41, 38, 39, 40), 48, False, None),
+             ("K = 200, band QP bisection, robust set of 11 plants", 200.0, (48, 35, 41, 38, 39, 40), 48, False,
+              "freq=3,zeta=30,gain=25,delay=3e-6,n=4"),
+             ("K = 1000, min-residual (epigraph) QP, N = 120, 110, 100, nominal", 1000.0, (120, 110, 100), 128, True, None))
+    for title, K, Ns, ncls, epi, robust in cases:
+        s, rows, (rw, rc) = solver_table(plant, ctrl, K, Ns, ncls, 0.7, epi, robust)
+        out += [f"### QP solvers: {title}", "", f"Dense QP: n = {s.n} variables, m = {s.m} rows; solves for N = "
+                f"{', '.join(map(str, Ns))} with one solver object (statuses: ok / inf = proven infeasible).", "",
+                "| solver | statuses | build s | first solve CPU ms | later solves CPU ms (mean) | later wall ms | "
+                "rel. violation (last) | objective (last) | max abs dx vs daqp |",
+                "|---|---|---|---|---|---|---|---|---|"]
         for r in rows:
-            out.append(f"| {r[0]} | {r[1]} | {r[2]:.3f} | {r[3] * 1e3:.1f} | {r[4] * 1e3:.1f} | {r[5]:.1e} | {r[6]:.6g} | {r[7]:.1e} |")
+            out.append(f"| {r[0]} | {r[1]} | {r[2]:.3f} | {r[3] * 1e3:.1f} | {r[4] * 1e3:.1f} | {r[5] * 1e3:.1f} | "
+                       f"{r[6]:.1e} | {r[7]:.6g} | {r[8]:.1e} |")
         d = {r[0]: r for r in rows}
         if "daqp" in d and "ipopt" in d:
-            out += ["", f"Ipopt (to_function, reused) / daqp solve wall time: {d['ipopt'][3] / d['daqp'][3]:.1f}x; "
-                    f"Opti + Ipopt rebuilt per solve: {rebuild_w * 1e3:.0f} ms.", ""]
+            out += ["", f"Ipopt (Opti, `to_function`, reused) / daqp CPU per solve: {d['ipopt'][4] / d['daqp'][4]:.0f}x; "
+                    f"Opti + Ipopt rebuilt for one solve: {rc * 1e3:.0f} ms CPU ({rw * 1e3:.0f} ms wall).", ""]
         print("\n".join(out[-(len(rows) + 8):]), flush=True)
     write_section("solver_reuse", "\n".join(out))
     print("wrote docs/results_design.md")
