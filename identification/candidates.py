@@ -103,6 +103,8 @@ def _rigid_key(plant: ModalPlant) -> tuple:
 class Engine:
     """Fast prediction, anchor projection and regressors for one plant on one :class:`Data`."""
 
+    refit_modes = True   #: re-fit the declared modes' gains with the base (they may have absorbed an effect)
+
     def __init__(self, plant: ModalPlant, data: Data):
         self.plant, self.d = plant, data
         self.lm = LinearModel(plant, data.log.dt)
@@ -145,12 +147,15 @@ class Engine:
 
     def base_cols(self) -> list:
         """Regressors of the base re-fit: relative k0 change [-], bias change [A], then the
-        linear parameters of the plant's effects (Kt coefficients, position-bias table,
-        periodic cos/sin, extra-mode gains; ``self.setters`` says which), re-fitted jointly
-        with every candidate."""
+        declared modes' gains (``refit_modes``) and the linear parameters of the plant's
+        effects (Kt coefficients, position-bias table, periodic cos/sin, extra-mode gains;
+        ``self.setters`` says which), re-fitted jointly with every candidate."""
         if getattr(self, "_base", None) is None:
             cols, self.setters = [self.y_lin, self.resp(force=np.ones(self.d.log.n))], []
             y, t = self.d.log.position_track, self.d.log.time_s
+            for i, m in enumerate(self.plant.modes if self.refit_modes else []):
+                cols.append(_mode_column(self.plant, self, m.freq_hz, m.zeta))
+                self.setters.append((("mode", i), "gain", None, True))
             for e in self.plant.effects:
                 d = e.to_dict()
                 if isinstance(e, TorqueConstantVariation):
@@ -191,6 +196,9 @@ def rebase(plant: ModalPlant, th, setters=(), **changes) -> ModalPlant:
         eff = [e.to_dict() for e in p.effects]
         keys = [json.dumps(e, sort_keys=True) for e in eff]
         for (d, key, j, scaled), t in zip(setters, th[2:]):
+            if isinstance(d, tuple) and d[0] == "mode":
+                p.modes[d[1]].gain = plant.modes[d[1]].gain + float(t) / (1.0 + k)
+                continue
             kd = json.dumps(d, sort_keys=True)
             if kd not in keys:
                 continue
@@ -210,7 +218,7 @@ def lstsq(r: np.ndarray, Z: np.ndarray, bounds=None):
         return np.zeros(0), float(r @ r)
     s = np.linalg.norm(Z, axis=0); s[s == 0] = 1.0
     if bounds is None:
-        th = np.linalg.lstsq(Z / s, r, rcond=None)[0]
+        th = np.linalg.lstsq(Z / s, r, rcond=1e-9)[0]
     else:
         th = lsq_linear(Z / s, r, bounds=(np.asarray(bounds[0]) * s, np.asarray(bounds[1]) * s)).x
     th = th / s

@@ -192,8 +192,24 @@ class Dependence:
     theta: np.ndarray | None = field(default=None, repr=False)
 
 
-def _bins(x, k, quantile=True):
-    edges = np.unique(np.quantile(x, np.linspace(0, 1, k + 1)) if quantile else np.linspace(x.min(), x.max(), k + 1))
+def _bins(x, k, quantile=True, min_frac: float = 0.01):
+    """``k`` bins of ``x``: quantiles, or equal widths over the 0.5..99.5 % range merged until
+    each holds ``min_frac`` of the samples; returns ``(edges, centres)``."""
+    if quantile:
+        edges = np.unique(np.quantile(x, np.linspace(0, 1, k + 1)))
+    else:
+        lo, hi = np.quantile(x, [0.005, 0.995])
+        edges = np.linspace(lo, hi, k + 1)
+        edges[0], edges[-1] = min(x.min(), lo), max(x.max(), hi)
+        cnt = np.histogram(x, edges)[0]
+        keep = [edges[0]]
+        acc = 0
+        for c, e in zip(cnt, edges[1:]):
+            acc += c
+            if acc >= min_frac * len(x):
+                keep.append(e); acc = 0
+        keep[-1] = edges[-1]
+        edges = np.unique(keep)
     edges[-1] += 1e-9 * max(1.0, abs(edges[-1]))
     return edges, 0.5 * (edges[1:] + edges[:-1])
 
@@ -240,7 +256,7 @@ def dependence(plant: ModalPlant, data: Data, val: Data | None = None, names=Non
             label, on, ch, unit, k = DEPENDENCE_TESTS[name]
             xsrc = {"position": data.log.position_track, "abs_current": np.abs(data.log.current_a),
                     "current": data.log.current_a, "time": data.log.time_s}[on]
-            edges, xs = _bins(xsrc[data.windows.index()], k, quantile=(on != "time"))
+            edges, xs = _bins(xsrc[data.windows.index()], k, quantile=(on == "position"))
             spec = {"on": on, "channel": ch, "edges": edges}
             cols = _features(eng, data, spec)
             vcols = None if veng is None else _features(veng, val, spec)

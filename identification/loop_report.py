@@ -76,8 +76,8 @@ def fig_spectra(R, path):
     a2.axhline(sa.coh_band, color="k", ls="--", lw=1, label=f"95 % null ({sa.coh_band:.2f})")
     a2.set_ylim(0, 1.02); a2.set_ylabel("coherence with current [-]"); a2.set_xlabel("frequency [Hz]")
     a2.legend(loc="upper left")
-    a2.text(0.99, 0.03, "closed loop: noise fed back through the controller is\ncoherent with the current "
-            "even for an exact model", transform=a2.transAxes, ha="right", va="bottom", fontsize=9)
+    a2.set_title("closed loop: noise fed back through the controller is coherent with the current "
+                 "even for an exact model", fontsize=9)
     fig.suptitle("Residual spectrum and coherence with the current (validation)")
     fig.tight_layout(); fig.savefig(path); plt.close(fig)
 
@@ -114,8 +114,11 @@ def fig_dependence(R, path):
             if d is None:
                 continue
             sc = 1e3 if d.unit == "A" else 100.0
-            x = d.x if len(d.x) > 1 else np.array([0.0])
-            ax.errorbar(x, sc * d.value, yerr=2 * sc * d.se, fmt="o-", color=col, capsize=3, ms=4,
+            if len(d.x) > 1:
+                x, val, se = d.x, d.value, d.se
+            else:                       # Coulomb-like step: +f for v < 0, -f for v > 0
+                x, val, se = np.array([-1.0, 1.0]), np.r_[d.value, -d.value], np.r_[d.se, d.se]
+            ax.errorbar(x, sc * val, yerr=2 * sc * se, fmt="o-", color=col, capsize=3, ms=4,
                         label=f"{lab} (chi2 {d.chi2:.0f}/{d.dof})")
         d = da[name]
         ax.axhline(0, color="k", lw=0.8)
@@ -123,7 +126,7 @@ def fig_dependence(R, path):
         ax.set_ylabel("force [mA]" if d.unit == "A" else "gain [%]")
         xl = {"position": "position [track]", "abs_current": "|current| [A]", "current": "current [A]",
               "time": "time [s]"}
-        ax.set_xlabel(next((v for k, v in xl.items() if name.endswith(k)), "velocity sign"))
+        ax.set_xlabel(next((v for k, v in xl.items() if name.endswith(k)), "sign of the velocity [-]"))
         ax.legend(fontsize=8)
     for ax in axes.ravel()[len(names):]:
         ax.axis("off")
@@ -146,17 +149,22 @@ def fig_sync(R, path):
 
 def fig_steps(R, path):
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(10, 4.5))
-    its = sorted({s.iteration for s in R.steps})
-    for s in R.steps:
-        ax.scatter(s.iteration, s.rms_after, color=AFTER if s.accepted else "#d08080",
-                   marker="o" if s.accepted else "x", zorder=3)
-        ax.annotate(s.effect, (s.iteration, s.rms_after), fontsize=8, xytext=(4, 0), textcoords="offset points")
-    ax.axhline(R.error_before["rms_track"], color=BEFORE, ls="--", label="before (identified model)")
-    ax.axhline(R.error_after["rms_track"], color=AFTER, ls="--", label="after")
-    ax.set_yscale("log"); ax.set_xticks(its or [1])
-    ax.set_xlabel("iteration"); ax.set_ylabel("validation RMS [track]")
-    ax.set_title("Candidates tried (o accepted, x rejected)"); ax.legend()
+    steps = R.steps or []
+    fig, ax = plt.subplots(figsize=(10, 0.32 * max(len(steps), 4) + 1.4))
+    y = np.arange(len(steps))[::-1]
+    rel = [100 * (s.rms_after / s.rms_before - 1) for s in steps]
+    shown = np.clip(rel, -100, 50)
+    ax.barh(y, shown, color=[AFTER if s.accepted else "#d9a0a0" for s in steps])
+    ax.set_yticks(y, [f"it {s.iteration}: {s.effect}" + ("  (accepted)" if s.accepted else "") for s in steps],
+                  fontsize=9)
+    for yi, r, sh in zip(y, rel, shown):
+        ax.text(sh + (1 if sh >= 0 else -1), yi, f"{r:+.1f} %", va="center", ha="left" if sh >= 0 else "right",
+                fontsize=8)
+    ax.axvline(0, color="k", lw=0.8)
+    ax.set_xlim(-115, 65)
+    ax.set_xlabel("change of the validation RMS against the model of that iteration [%] (clipped to -100..50)")
+    ax.set_title(f"Candidates tried: validation RMS {R.error_before['rms_track']:.3g} -> "
+                 f"{R.error_after['rms_track']:.3g} track")
     fig.tight_layout(); fig.savefig(path); plt.close(fig)
 
 

@@ -1,0 +1,151 @@
+"""Residual simulation and analysis (identification.residual): the fast linear engine equals
+DiscretePlant stepping, windows, and the statistical tests behave as stated on known signals."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.signal import lfilter
+
+from identification.effects import AmplifierLag, ExtraMode, InputDelay, PivotSpringDamper
+from identification.logs import SeekLog
+from identification.residual import (LinearModel, Windows, correlations, detect_spindle, fit_percent,
+                                     nonlinear_tests, seek_windows, simulate, spectra, synchronous_average)
+from seekopt.presets import default_truth_plant
+from seekopt.synth import SynthConfig, synthesize
+
+
+@pytest.fixture(scope="module")
+def small_log():
+    return synthesize(SynthConfig(n_seeks=10, seed=3))
+
+
+def _project(windows, basis, x):
+    out = []
+    for a, b in windows.bounds:
+        Q, _ = np.linalg.qr(basis(b - a))
+        out.append(x[a:b] - Q @ (Q.T @ x[a:b]))
+    return np.concatenate(out)
+
+
+@pytest.mark.parametrize("effects", [[], [AmplifierLag(3000.0)], [InputDelay(2.3e-5)],
+                                     [PivotSpringDamper(8.0, 0.2, 30000.0)],
+                                     [ExtraMode(700.0, 0.05, 0.003), AmplifierLag(5000.0)]],
+                         ids=["plain", "lag", "delay", "pivot", "mode+lag"])
+def test_linear_engine_equals_discrete_plant(small_log, effects):
+    log, truth = small_log
+    plant = truth.copy(effects=effects)
+    w = seek_windows(log)
+    ref = simulate(plant, log, w, continuous=True)           # DiscretePlant stepped sample by sample
+    lm = LinearModel(plant, log.dt)
+    force = np.full(log.n, plant.bias_a)
+    if effects and isinstance(effects[0], PivotSpringDamper):
+        force += (2 * np.pi * effects[0].freq_hz) ** 2 * effects[0].rest_track / plant.k0
+    e = _project(w, lm.free_basis, log.position_track - lm.response(log.current_a, force, w))
+    assert np.max(np.abs(e - ref.e)) < 1e-6 * max(1.0, np.max(np.abs(ref.e)))
+
+
+def test_exact_model_leaves_small_residual_without_noise():
+    log, truth = synthesize(SynthConfig(n_seeks=8, seed=4, noise=False, rro=False))
+    res = simulate(truth, log, seek_windows(log), continuous=False)
+    # only the servo-rate ZOH of the mean sub-step current differs from the drive
+    assert res.rms < 0.05
+    assert res.fit_percent > 99.99
+
+
+def test_seek_windows_split_and_groups(small_log):
+    log, _ = small_log
+    w = seek_windows(log, max_len_s=0.004)
+    L = int(round(0.004 * log.sample_rate_hz))
+    assert all(b - a <= L + 32 for a, b in w.bounds)
+    assert all(b1 <= a2 for (_, b1), (a2, _) in zip(w.bounds, w.bounds[1:]))
+    fit, val = w.split(2)
+    assert not set(fit.groups) & set(val.groups)          # a seek is either fit or validation
+    assert fit.n_samples + val.n_samples == w.n_samples
+
+
+def test_fit_percent_definition(small_log):
+    log, _ = small_log
+    w = Windows([(100, 400)])
+    y = log.position_track[100:400]
+    assert fit_percent(log, w, np.zeros(300)) == pytest.approx(100.0)
+    assert fit_percent(log, w, y - y.mean()) == pytest.approx(0.0)
+
+
+def _fake_log(n, fs=10000.0):
+    t = np.arange(n) / fs
+    z = np.zeros(n)
+    return SeekLog(t, z, z.copy(), z.copy(), fs)
+
+
+def test_ljung_band_is_valid_for_coloured_independent_signals():
+    rng = np.random.default_rng(0)
+    n = 40000
+    w = Windows([(a, a + 2000) for a in range(0, n, 2000)])
+    viol_ljung, viol_white = [], []
+    for _ in range(6):
+        e = lfilter([1.0], [1.0, -0.9], rng.standard_normal(n))     # coloured, independent
+        u = lfilter([1.0], [1.0, -0.8], rng.standard_normal(n))
+        c = correlations(e, u, w, max_lag=30)
+        viol_ljung.append(np.mean(np.abs(c.cross) > c.cross_band))
+        viol_white.append(np.mean(np.abs(c.cross) > 1.96 / np.sqrt(n)))
+    assert np.mean(viol_ljung) < 0.12                            # ~5 % nominal
+    assert np.mean(viol_white) > 2 * max(np.mean(viol_ljung), 0.05)   # the white band is wrong here
+
+
+def test_whiteness_and_cross_correlation_detect_dependence():
+    rng = np.random.default_rng(1)
+    n = 20000
+    w = Windows([(a, a + 1000) for a in range(0, n, 1000)])
+    u = rng.standard_normal(n)
+    e = np.r_[0.0, 0.0, 0.8 * u[:-2]] + 0.3 * rng.standard_normal(n)   # depends on u(t - 2)
+    c = correlations(e, u, w, max_lag=10)
+    assert 2 in c.past_input_violations
+    white = correlations(rng.standard_normal(n), u, w, max_lag=50)
+    assert white.whiteness_fraction < 0.15
+
+
+def test_coherence_peak_for_unmodelled_resonance():
+    rng = np.random.default_rng(2)
+    fs, n = 10000.0, 60000
+    w = Windows([(a, a + 3000) for a in range(0, n, 3000)])
+    u = rng.standard_normal(n)
+    from scipy.signal import butter
+    b, a = butter(2, [700 / (fs / 2), 900 / (fs / 2)], btype="band")
+    e = lfilter(b, a, u) + 0.05 * rng.standard_normal(n)
+    e += 0.3 * rng.standard_normal(n) * np.std(e) / 0.3                # as much noise as signal
+    sp = spectra(e, u, w, fs, nperseg=256)
+    f, coh = sp.coherent_peaks(max_peaks=1)[0]
+    assert 650 < f < 950 and coh > 0.5
+    far = (sp.f > 2500) & (sp.f < 4500)
+    assert np.median(sp.coh[far]) < 2 * sp.coh_band
+
+
+def test_spindle_detection_and_synchronous_average():
+    rng = np.random.default_rng(3)
+    fs, n, f0 = 20000.0, 60000, 87.3
+    t = np.arange(n) / fs
+    w = Windows([(a, a + 400) for a in range(0, n, 500)])
+    walk = np.cumsum(np.cumsum(rng.standard_normal(n))) * 5e-4        # ~0.2 rms after the anchors
+    e = walk + 0.2 * np.sin(2 * np.pi * f0 * t) + 0.05 * np.sin(4 * np.pi * f0 * t + 1) + 0.1 * rng.standard_normal(n)
+    for a, b in w.bounds:                                               # per-window anchors removed
+        B = np.c_[np.ones(b - a), np.arange(b - a)]
+        e[a:b] -= B @ np.linalg.lstsq(B, e[a:b], rcond=None)[0]
+    (f, score), = detect_spindle(e, w, fs, top=1)
+    assert abs(f - f0) < 0.5 and score > 3
+    ph, mean, se, frac = synchronous_average(e, t, w, f0, nbins=64)
+    assert frac > 0.15                       # the sines are ~30 % of the variance
+    ref = 0.2 * np.sin(2 * np.pi * ph) + 0.05 * np.sin(4 * np.pi * ph + 1)
+    assert np.corrcoef(mean, ref)[0, 1] > 0.9
+
+
+def test_nonlinear_tests_flag_quadratic_dependence():
+    rng = np.random.default_rng(4)
+    n = 20000
+    w = Windows([(a, a + 1000) for a in range(0, n, 1000)])
+    u = rng.standard_normal(n)
+    y = np.cumsum(u) * 0.01
+    lin = nonlinear_tests(0.1 * rng.standard_normal(n), u, y, w)
+    quad = nonlinear_tests(0.5 * (u ** 2 - 1) + 0.1 * rng.standard_normal(n), u, y, w)
+    m, band = quad["BV_u2_e"]
+    assert m > 5 * band
+    assert lin["BV_u2_e"][0] < 2.5 * lin["BV_u2_e"][1]
