@@ -35,10 +35,11 @@ from .plant import ModalPlant, Mode
 from .residual import (LinearModel, Windows, detect_spindle, eval_forces, eval_inputs, eval_outputs,
                        simulate, velocity_estimate)
 
-__all__ = ["Data", "Engine", "Fit", "CANDIDATES", "fit_candidate", "refit_base", "oe_sse", "bic",
+__all__ = ["Data", "Engine", "Fit", "CANDIDATES", "fit_candidate", "refit_base", "bic",
            "cluster_cov", "lstsq", "segments"]
 
 MIN_WALD = 16.0   #: chi^2 a candidate's own parameters must reach on the fit data (~4 sigma)
+ZETA_MAX = 0.5    #: largest damping ratio an extra mode may have (beyond: not a resonance)
 
 
 # ------------------------------------------------------------------------------ data
@@ -267,12 +268,6 @@ def refit_base(plant: ModalPlant, data: Data, iters: int = 2) -> ModalPlant:
         th, _ = lstsq(P[:, 0], P[:, 1:])
         plant = rebase(plant, th, eng.setters)
     return plant
-
-
-def oe_sse(plant: ModalPlant, data: Data) -> float:
-    """Sum of squared output-error residuals [track^2] (fast engine)."""
-    e = Engine(plant, data).residual()
-    return float(e @ e)
 
 
 # ------------------------------------------------------------------------------ fits
@@ -531,7 +526,7 @@ def fit_extra_mode(plant, data, n_grid: int = 24, max_samples: int = 8000):
 
     def cost(x):
         f, z = math.exp(x[0]), math.exp(x[1])
-        if _near_existing(plant, f) or not flo <= f <= fhi or not 0.002 <= z <= 0.7:
+        if _near_existing(plant, f) or not flo <= f <= fhi or not 0.002 <= z <= ZETA_MAX:
             return sse0
         col = eng.project(_mode_column(plant, eng, f, z))
         return lstsq(P0[:, 0], np.column_stack([P0[:, 1:], col]))[1]
@@ -542,8 +537,8 @@ def fit_extra_mode(plant, data, n_grid: int = 24, max_samples: int = 8000):
     best = minimize(cost, grid[i], method="Nelder-Mead",
                     options={"xatol": 2e-3, "fatol": 1e-6 * costs[i], "maxiter": 60})
     f, z = (float(math.exp(v)) for v in best.x)
-    if _near_existing(plant, f) or not flo <= f <= fhi:
-        return None
+    if _near_existing(plant, f) or not flo <= f <= fhi or z > 0.95 * ZETA_MAX:
+        return None          # at a bound: not a resonance the data pin down
     col = eng.project(_mode_column(plant, eng, f, z))
     X = np.column_stack([P0[:, 1:], col])
     th, _ = lstsq(P0[:, 0], X)

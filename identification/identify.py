@@ -293,7 +293,7 @@ def _identify_robust(log: SeekLog, fit_seeks, opts, timing) -> Identification:
     u, y = log.current_a, log.position_track
     lo, hi = opts["freq_range"]
     segs = [(s.start, s.end) for s in fit_seeks]
-    ppo, diag, tabu = {}, {}, []
+    ppo, diag, tabu, runout_hz = {}, {}, [], [0.0]
     clock = time.perf_counter()
 
     def lap(name):
@@ -342,14 +342,18 @@ def _identify_robust(log: SeekLog, fit_seeks, opts, timing) -> Identification:
         return VarPro(uu, yy, dt, seg, ar=ar, nuisance=Z), vp
 
     def prune(vp, x):
-        """Drop the least significant mode while any |gain|/std < t_min, and near-duplicates."""
+        """Drop the least significant mode while any |gain|/std < t_min, near-duplicates, and
+        run-out lines (undamped, zeta < 1e-3, on a harmonic of the run-out period)."""
         while (len(x) - 1) // 2 > 0:
             R = (len(x) - 1) // 2
-            tv, f = _t_stats(vp, x), np.exp(x[:R])
+            tv, f, z = _t_stats(vp, x), np.exp(x[:R]), np.exp(x[R:2 * R])
             for i in range(R):                     # two modes within 1.5 %: drop the weaker
                 for j in range(i + 1, R):
                     if abs(f[i] / f[j] - 1) < 0.015:
                         tv[i if tv[i] < tv[j] else j] = -1.0
+            if runout_hz[0]:
+                h = f / runout_hz[0]
+                tv[(z < 1e-3) & (np.abs(h - np.round(h)) < 0.02)] = -2.0
             worst = int(np.argmin(tv))
             if tv[worst] >= opts["t_min"]:
                 return x
@@ -422,7 +426,7 @@ def _identify_robust(log: SeekLog, fit_seeks, opts, timing) -> Identification:
         period = int(opts["periodic"])
     diag.update(periodic_period_samples=period, periodic_F=fstat)
     if period:
-        nuis = period
+        nuis, runout_hz[0] = period, fs / period
         vp, vp0 = make(sub, x, nuis)
         if len(x) > 1:
             x = prune(vp, refine(vp, x))

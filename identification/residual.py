@@ -299,19 +299,6 @@ class LinearModel:
         return (rigid, flex) if split else rigid + flex
 
 
-def _project(windows: Windows, basis_fn, *arrays):
-    """Remove, window by window, the least-squares fit of the anchor basis.
-
-    Returns the concatenated projected samples of each array (2-D arrays: per column)."""
-    outs = [[] for _ in arrays]
-    for a, b in windows.bounds:
-        Q, _ = np.linalg.qr(basis_fn(b - a))
-        for j, x in enumerate(arrays):
-            seg = x[a:b]
-            outs[j].append(seg - Q @ (Q.T @ seg))
-    return [np.concatenate(o) for o in outs]
-
-
 # ------------------------------------------------------------------------ results
 @dataclass
 class Residual:

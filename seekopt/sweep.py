@@ -523,7 +523,8 @@ def _iter_serial(payloads):
 
 
 def make_pool(workers: int | None = None):
-    """A process pool for :func:`run_sweep` (``spawn``: no fork of a threaded parent)."""
+    """A process pool for :func:`run_sweep` (``spawn``: no fork of a threaded parent; a script that
+    runs a sweep on it needs the ``if __name__ == "__main__":`` guard)."""
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor
     return ProcessPoolExecutor(max_workers=workers or os.cpu_count() or 1, mp_context=mp.get_context("spawn"),

@@ -115,7 +115,7 @@ def main(argv=None) -> int:
                 f"identical seek-settle samples: {same}.", ""]
         print("\n".join(out[-(len(TRACKS) + 6):]), flush=True)
     cases = (("K = 200, min seek-settle bisection (band QP, class 48), nominal", 200.0, (48, 35, 41, 38, 39, 40), 48, False, None),
-             ("K = 200, band QP bisection, robust set of 11 plants", 200.0, (48, 35, 41, 38, 39, 40), 48, False,
+             ("K = 200, band QP bisection, robust set of 11 plants", 200.0, (64, 40, 52, 46, 49, 48), 64, False,
               "freq=3,zeta=30,gain=25,delay=3e-6,n=4"),
              ("K = 1000, min-residual (epigraph) QP, N = 120, 110, 100, nominal", 1000.0, (120, 110, 100), 128, True, None))
     for title, K, Ns, ncls, epi, robust in cases:

@@ -1,7 +1,6 @@
 """Tests for seekopt.demo: the bundled sample log, the quick pipeline end to end through the CLI,
 and a failing stage reported as one line (exit 2)."""
 import json
-from pathlib import Path
 
 import pandas as pd
 import pytest

@@ -5,7 +5,6 @@ The machinery is tested with the ``baseline`` designer (shortest bang-bang withi
 the tests do not depend on the optimiser's speed; the optimiser-backed sweep is under
 ``@pytest.mark.slow``.
 """
-import json
 import os
 import signal
 import subprocess
