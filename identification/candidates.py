@@ -308,7 +308,7 @@ def _vp_search(data, make, grid, log_scale=False, max_samples: int = 8000):
 def fit_input_delay(plant, data):
     dt = data.log.dt
     p, tau = _vp_search(data, lambda t: plant.copy(effects=plant.effects + [InputDelay(float(t))]),
-                        np.linspace(-plant.total_delay_s, 4 * dt, 10))
+                        np.linspace(-plant.total_delay_s, 8 * dt, 17))
     return Fit("input_delay", p, 1, {"delay_s": float(tau)})
 
 

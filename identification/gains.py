@@ -126,8 +126,11 @@ def mode_response(u, freq_hz: float, zeta: float, dt: float, delay_s: float = 0.
 def mode_regressors(u, freqs_hz, zetas, dt: float, delay_s: float = 0.0, steady: bool = True) -> np.ndarray:
     """Matrix of unit-mode responses, one column per mode: ``Y[:, r] = y_r = h_r * u`` (eq. (9))."""
     u = np.asarray(u, dtype=float)
-    cols = [_steady_filter(b, a, u, steady) for b, a in mode_filters(freqs_hz, zetas, dt, delay_s)]
-    return np.column_stack(cols) if cols else np.zeros((len(u), 0))
+    filters = mode_filters(freqs_hz, zetas, dt, delay_s)
+    out = np.empty((len(u), len(filters)), order="F")
+    for r, (b, a) in enumerate(filters):
+        out[:, r] = _steady_filter(b, a, u, steady)
+    return out
 
 
 def fir_filter(h, x, steady: bool = False) -> np.ndarray:

@@ -208,8 +208,8 @@ def identify(log: SeekLog, method: str = "robust", **options) -> Identification:
         where modes are looked for), ``prony_order`` (8, paper: mode pairs of LS Prony).
         Robust only: ``max_modes`` (12), ``ar_order`` (32: whitening AR order, 0 disables),
         ``t_min`` (5.0: least |gain| / std kept), ``scan`` (True: add modes the pencil missed),
-        ``max_nfev`` / ``final_nfev`` (40 / 15: evaluations per refinement in the search / final
-        stage), ``stage_rows`` (150000: samples of the search stage, a contiguous stretch of the log
+        ``max_nfev`` / ``final_nfev`` (25 / 10: evaluations per refinement in the search / final
+        stage), ``stage_rows`` (60000: samples of the search stage, a contiguous stretch of the log
         starting ``stage_history`` (4096) samples before its first seek), ``periodic`` ("auto",
         None or a period in samples: repeatable run-out), ``periodic_harmonics`` (10),
         ``nw_lags`` (32: Newey-West lags).
@@ -227,7 +227,7 @@ def identify(log: SeekLog, method: str = "robust", **options) -> Identification:
         raise ValueError(f"method must be 'robust' or 'paper', got {method!r}")
     fs = log.sample_rate_hz
     opts = dict(holdout_every=5, freq_range=(100.0, 0.47 * fs), max_modes=12, ar_order=32, t_min=5.0,
-                scan=True, max_nfev=40, final_nfev=15, stage_rows=150_000, stage_history=4096, periodic="auto",
+                scan=True, max_nfev=25, final_nfev=10, stage_rows=60_000, stage_history=4096, periodic="auto",
                 periodic_harmonics=10, nw_lags=32, prony_order=8)
     unknown = set(options) - set(opts)
     if unknown:
@@ -402,7 +402,8 @@ def _identify_robust(log: SeekLog, fit_seeks, opts, timing) -> Identification:
                 fl = grid[i] * np.exp(np.linspace(-0.02, 0.02, 17))
                 st = vp.scan(x, fl, fine_zetas)[0]
                 k, j = np.unravel_index(int(np.argmax(st)), st.shape)
-                if all(abs(fl[k] / f0 - 1) > 0.03 for f0, _, _ in props):
+                if all(abs(fl[k] / f0 - 1) > 0.03 for f0, _, _ in props) and \
+                        all(abs(fl[k] / f0 - 1) > 0.01 for f0 in tabu):
                     props.append((float(fl[k]), fine_zetas[j], float(st[k, j] / s2)))
             for f0, zt, st in props:
                 added.append((f0, zt, st))

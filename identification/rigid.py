@@ -185,6 +185,13 @@ class SegmentProjector:
             Q.append(v)
         self.Q = np.column_stack(Q)
         self.t = t
+        # the projection as sparse products: coefficients S x (one row per segment and basis
+        # function), fit S^T (S x)
+        from scipy import sparse
+        w, nseg, n = self.Q.shape[1], len(segs), len(self.rows)
+        self._S = sparse.csr_matrix((self.Q.T.ravel(), (np.repeat(np.arange(w), n) * nseg + np.tile(self.seg_id, w),
+                                                        np.tile(np.arange(n), w))), shape=(w * nseg, n))
+        self._ST = self._S.T.tocsr()
 
     @property
     def n_rows(self) -> int:
@@ -201,13 +208,7 @@ class SegmentProjector:
     def fitted(self, x) -> np.ndarray:
         """The per-segment polynomial LS fit of rows ``x`` (1-D, or 2-D with one column per signal)."""
         x = np.asarray(x, dtype=float)
-        x2 = x[:, None] if x.ndim == 1 else x
-        out = np.zeros_like(x2)
-        for j in range(self.Q.shape[1]):
-            q = self.Q[:, j:j + 1]
-            c = np.add.reduceat(q * x2, self.bounds[:-1], axis=0)     # per-segment coefficient
-            out += q * c[self.seg_id]
-        return out[:, 0] if x.ndim == 1 else out
+        return self._ST @ (self._S @ x)
 
     def project(self, x) -> np.ndarray:
         """``x`` minus its per-segment polynomial fit (``x`` already restricted to the rows)."""

@@ -47,7 +47,10 @@ OTHER = ["clean", "rro", "two", "dead_zone", "time_varying_gain"]
 def random_effect(name: str, rng: np.random.Generator, imax_a: float = 0.3,
                   stroke=(0.0, 60000.0)) -> dict:
     """One effect at a random strength from physically plausible ranges [SI-ish units:
-    s, Hz, A, track].  The ranges are the study's choice, not the synthetic drive's defaults."""
+    s, Hz, A, track].  The ranges are the study's choice, not the synthetic drive's defaults;
+    position-dependent effects are drawn over ``stroke``, the range the seeks visit.  A
+    position-bias table is redrawn until it departs from a straight line by >= 0.3 mA (a
+    linear table is exactly a pivot spring and is reported as one)."""
     lo, hi = stroke
     span = hi - lo
     u = rng.uniform
@@ -59,14 +62,19 @@ def random_effect(name: str, rng: np.random.Generator, imax_a: float = 0.3,
         p = {"freq_hz": u(2.0, 10.0), "zeta": u(0.1, 0.5), "rest_track": lo + span * u(0.2, 0.8)}
     elif name == "position_bias":
         k = int(rng.integers(4, 7))
-        p = {"knots_track": list(np.linspace(lo, hi, k)), "bias_a": list(u(-1.5e-3, 1.5e-3, k))}
+        x = np.linspace(lo, hi, k)
+        while True:
+            b = u(-1.5e-3, 1.5e-3, k)
+            if np.max(np.abs(b - np.polyval(np.polyfit(x, b, 1), x))) >= 0.3e-3:
+                break
+        p = {"knots_track": list(x), "bias_a": list(b)}
     elif name == "friction":
         p = {"coulomb_a": u(0.5e-3, 3e-3), "viscous_a_per_tps": u(0.0, 3e-9)}
     elif name == "torque_constant_variation":
         p = {"coeffs": [float(rng.choice([-1, 1]) * u(0.02, 0.08)), u(-0.02, 0.02)],
              "center_track": lo + span * u(0.3, 0.7), "scale_track": span * u(0.15, 0.5)}
     elif name == "current_saturation":
-        p = {"limit_a": imax_a * u(0.6, 0.9)}
+        p = {"limit_a": imax_a * u(0.75, 0.95)}
     elif name == "periodic_disturbance":
         amp = u(0.2, 0.5)
         ph = u(0, 2 * np.pi, 2)
@@ -105,20 +113,34 @@ def standin_model(truth_base, seed: int):
                            bias_a=truth_base.bias_a + 1e-4 * n(), effects=[])
 
 
+def visited_range(cfg: SynthConfig, base) -> tuple:
+    """Range of seek targets [track] of a synthetic schedule (5..95 % of them)."""
+    from seekopt.controller import Controller
+    from seekopt.synth import schedule_seeks
+    seeks, _ = schedule_seeks(cfg, base.k0, Controller.nss().sample_rate_hz)
+    t = np.array([s.to_track for s in seeks] + [seeks[0].from_track])
+    return float(np.quantile(t, 0.05)), float(np.quantile(t, 0.95))
+
+
 def make_case(case: str, seed: int, n_seeks: int):
     """(log, truth, declared effects [dicts], model base plant) of one study case."""
     rng = np.random.default_rng(seed)
     base = default_truth_plant()
     rro = case == "rro"
-    if case in EFFECTS:
-        effs = [random_effect(case, rng)]
-    elif case == "two":
-        effs = [random_effect("friction", rng), random_effect("torque_constant_variation", rng)]
-    elif case == "dead_zone":
-        effs = [DeadZone(float(rng.uniform(1e-3, 4e-3)))]
-    else:
-        effs = []
-    log, truth = synthesize(SynthConfig(n_seeks=n_seeks, seed=seed, rro=rro, effects=effs))
+    vis = visited_range(SynthConfig(n_seeks=n_seeks, seed=seed), base)
+    for _ in range(8):   # the synthetic drive's PID has no anti-windup: redraw if its loop diverged
+        if case in EFFECTS:
+            effs = [random_effect(case, rng, stroke=vis)]
+        elif case == "two":
+            effs = [random_effect("friction", rng, stroke=vis),
+                    random_effect("torque_constant_variation", rng, stroke=vis)]
+        elif case == "dead_zone":
+            effs = [DeadZone(float(rng.uniform(1e-3, 4e-3)))]
+        else:
+            effs = []
+        log, truth = synthesize(SynthConfig(n_seeks=n_seeks, seed=seed, rro=rro, effects=effs))
+        if np.max(np.abs(log.current_a)) < 3 * 0.3 and np.max(np.abs(log.pes)) < 1e5:
+            break
     if case == "time_varying_gain":     # +-2..6 % drift over the log, added open loop (post-processing)
         g = rng.choice([-1, 1]) * rng.uniform(0.02, 0.06) * (log.time_s - log.time_s[0]) / log.time_s[-1]
         log.position_track = log.position_track + truth.copy(bias_a=0.0).simulate_open_loop(
