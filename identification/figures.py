@@ -153,14 +153,14 @@ def fig6_settle_pes(log: SeekLog, ident: Identification, seeks=None, n_seeks: in
         for ax, s, yh, yr in zip(axes[:, 0], seeks, full, rig):
             i = slice(s.settle, s.end)
             t = (np.arange(s.settle, s.end) - s.start) * log.dt * 1e3
-            ax.plot(t, pes[i], lw=1.0, label="measured")
-            ax.plot(t, yh[s.settle - s.start:] - log.target_track[i], lw=1.0, label="estimated")
+            ax.plot(t, pes[i], lw=1.8, color="C0", alpha=0.8, label="measured")
+            ax.plot(t, yh[s.settle - s.start:] - log.target_track[i], "--", lw=1.1, color="C3", label="estimated")
             ax.plot(t, yr[s.settle - s.start:] - log.target_track[i], ":", color="0.4", lw=0.9, label="rigid only")
             ax.set_ylabel("PES [track]")
             ax.text(0.99, 0.95, f"seek of {s.length_track:+.0f} tracks", ha="right", va="top",
                     transform=ax.transAxes, fontsize=8)
             ax.grid(True, alpha=0.3)
-        axes[0, 0].legend(fontsize=8, ncol=3, loc="lower left")
+        axes[0, 0].legend(fontsize=8, ncol=3, loc="best", framealpha=0.7)
         axes[-1, 0].set_xlabel("time from seek start [ms]")
     fp = ident.diagnostics.get("fit_percent_window_init", np.nan) if window_init else ident.fit_percent
     how = "settle window" if window_init else "whole seek"

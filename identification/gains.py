@@ -416,12 +416,15 @@ def periodic_columns(n: int, period: float, harmonics: int, offset: int = 0) -> 
     return np.column_stack(cols)
 
 
-def sandwich_cov(J, r, bounds, lags: int):
-    """Covariance of LS estimates with serially correlated residuals (Newey-West, Bartlett weights).
+def sandwich_cov(J, r, bounds, lags: int = 32, kind: str = "newey-west"):
+    """Covariance of LS estimates with serially correlated residuals: ``B M B``, ``B = (J^T J)^-1``.
 
-    ``J`` (rows x params) and ``r`` are stacked segments with row ``bounds``; cross products are taken
-    only within segments.  Returns ``(cov, cov_white)`` where ``cov_white = s^2 (J^T J)^-1`` is the
-    plain Gauss-Newton covariance scaled by the residual variance.
+    ``J`` (rows x params) and ``r`` are stacked segments with row ``bounds``.  ``kind="newey-west"``:
+    ``M = sum_{|l| <= lags} (1 - |l|/(lags+1)) sum_i g_i g_{i+l}^T`` over pairs within a segment
+    (``g_i = r_i J_i``, Bartlett weights); ``kind="cluster"``: ``M = sum_s G_s G_s^T`` with
+    ``G_s = sum_{i in s} g_i`` (any correlation within a segment, none across; needs many more
+    segments than parameters).  Returns ``(cov, cov_white)`` where ``cov_white = s^2 (J^T J)^-1`` is
+    the plain Gauss-Newton covariance scaled by the residual variance.
     """
     s = np.linalg.norm(J, axis=0)
     s[s == 0] = 1.0
@@ -430,6 +433,11 @@ def sandwich_cov(J, r, bounds, lags: int):
     dof = max(len(r) - J.shape[1], 1)
     cov_white = B * float(r @ r) / dof
     G = Js * r[:, None]
+    if kind == "cluster":
+        Gs = np.add.reduceat(G, np.asarray(bounds[:-1], dtype=int), axis=0)
+        k = len(Gs)
+        cov = B @ (Gs.T @ Gs) @ B * (k / max(k - 1, 1)) * len(r) / dof
+        return cov / np.outer(s, s), cov_white / np.outer(s, s)
     M = G.T @ G
     inner = np.asarray(bounds[1:-1], dtype=int)
     for lag in range(1, lags + 1):

@@ -74,7 +74,7 @@ from .gains import (VarPro, ar_whitener, detect_period, modal_gains, mode_regres
                     sandwich_cov)
 from .logs import LogError, SeekLog, segment_seeks
 from .plant import ModalPlant, Mode
-from .prony import fit_amplitudes, ls_prony, matrix_pencil, modal_to_z, z_to_modal
+from .prony import fit_amplitudes, ls_prony, matrix_pencil, modal_to_z, stabilisation_diagram, z_to_modal
 from .rigid import bias_response, eq8_fit, rigid_fit, zoh_rigid_response
 
 __all__ = ["Identification", "identify", "heldout_fit", "predict_segments", "runout_signal"]
@@ -212,6 +212,7 @@ def identify(log: SeekLog, method: str = "robust", **options) -> Identification:
         stage), ``stage_rows`` (60000: samples of the search stage, a contiguous stretch of the log
         starting ``stage_history`` (4096) samples before its first seek), ``periodic`` ("auto",
         None or a period in samples: repeatable run-out), ``periodic_harmonics`` (10),
+        ``cov`` ("newey-west" or "cluster": see :func:`identification.gains.sandwich_cov`),
         ``nw_lags`` (32: Newey-West lags).
 
     Returns
@@ -228,7 +229,7 @@ def identify(log: SeekLog, method: str = "robust", **options) -> Identification:
     fs = log.sample_rate_hz
     opts = dict(holdout_every=5, freq_range=(100.0, 0.47 * fs), max_modes=12, ar_order=32, t_min=5.0,
                 scan=True, max_nfev=25, final_nfev=10, stage_rows=60_000, stage_history=4096, periodic="auto",
-                periodic_harmonics=10, nw_lags=32, prony_order=8)
+                periodic_harmonics=10, nw_lags=32, cov="newey-west", prony_order=8)
     unknown = set(options) - set(opts)
     if unknown:
         raise TypeError(f"identify: unknown option(s) {sorted(unknown)}")
@@ -313,6 +314,11 @@ def _identify_robust(log: SeekLog, fit_seeks, opts, timing) -> Identification:
         diag["pencil_rejected"] = [(float(z_to_modal(z, fs)[0]), why) for z, why in pdiag.rejected]
     except ValueError as exc:                      # no window long enough
         poles, diag["pencil_error"] = [], str(exc)
+    try:                                            # stabilisation diagram: pencil poles per order
+        for o, fz in zip(range(2, 26, 2), stabilisation_diagram(wins, fs, range(2, 26, 2))):
+            ppo[f"pencil order {o}"] = [tuple(map(float, row)) for row in fz]
+    except ValueError:
+        pass
     ppo["pencil"] = [(p.freq_hz, p.zeta) for p in poles]
     diag["settle_modes"] = [(p.freq_hz, p.zeta, p.amplitude) for p in poles]
     cand = sorted((p for p in poles if lo <= p.freq_hz <= hi), key=lambda p: -p.energy)[:opts["max_modes"]]
@@ -441,7 +447,7 @@ def _identify_robust(log: SeekLog, fit_seeks, opts, timing) -> Identification:
     while True:                                     # covariance; drop modes not significant in it
         R = (len(x) - 1) // 2
         J, r = vp.jacobian(x, full=True)
-        cov, cov_white = sandwich_cov(J, r, vp.proj.bounds, lags=opts["nw_lags"])
+        cov, cov_white = sandwich_cov(J, r, vp.proj.bounds, lags=opts["nw_lags"], kind=opts["cov"])
         X, c, r, _ = vp.solve(x)
         tv = np.abs(c[2:2 + R]) / np.maximum(np.sqrt(np.diag(cov)[len(x) + 2:len(x) + 2 + R]), 1e-300)
         if R == 0 or tv.min() >= opts["t_min"]:

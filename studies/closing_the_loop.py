@@ -45,12 +45,13 @@ OTHER = ["clean", "rro", "two", "dead_zone", "time_varying_gain"]
 
 # --------------------------------------------------------------- effect generator
 def random_effect(name: str, rng: np.random.Generator, imax_a: float = 0.3,
-                  stroke=(0.0, 60000.0)) -> dict:
+                  stroke=(0.0, 60000.0), declared_hz=()) -> dict:
     """One effect at a random strength from physically plausible ranges [SI-ish units:
     s, Hz, A, track].  The ranges are the study's choice, not the synthetic drive's defaults;
     position-dependent effects are drawn over ``stroke``, the range the seeks visit.  A
     position-bias table is redrawn until it departs from a straight line by >= 0.3 mA (a
-    linear table is exactly a pivot spring and is reported as one)."""
+    linear table is exactly a pivot spring and is reported as one).  An extra mode is kept
+    >= 15 % away from the declared modes ``declared_hz`` (closer, it is a misfit of that mode)."""
     lo, hi = stroke
     span = hi - lo
     u = rng.uniform
@@ -83,7 +84,11 @@ def random_effect(name: str, rng: np.random.Generator, imax_a: float = 0.3,
              "sin_track": list(a * np.sin(ph))}
     elif name == "extra_mode":
         z = u(0.01, 0.08)
-        p = {"freq_hz": float(np.exp(u(np.log(300.0), np.log(3000.0)))), "zeta": z,
+        while True:
+            f = float(np.exp(u(np.log(300.0), np.log(3000.0))))
+            if all(abs(f / d - 1) > 0.15 for d in declared_hz):
+                break
+        p = {"freq_hz": f, "zeta": z,
              "gain": float(rng.choice([-1, 1]) * 2 * z * u(0.3, 0.8))}
     else:
         raise ValueError(name)
@@ -130,7 +135,7 @@ def make_case(case: str, seed: int, n_seeks: int):
     vis = visited_range(SynthConfig(n_seeks=n_seeks, seed=seed), base)
     for _ in range(8):   # the synthetic drive's PID has no anti-windup: redraw if its loop diverged
         if case in EFFECTS:
-            effs = [random_effect(case, rng, stroke=vis)]
+            effs = [random_effect(case, rng, stroke=vis, declared_hz=[m.freq_hz for m in base.modes])]
         elif case == "two":
             effs = [random_effect("friction", rng, stroke=vis),
                     random_effect("torque_constant_variation", rng, stroke=vis)]
