@@ -104,7 +104,10 @@ class Identification:
     timing : dict
         Seconds per stage.
     diagnostics : dict
-        Anything else (rejected poles, significance, AR order, inflation factor, ...).
+        Anything else, e.g. ``fit_percent_window_init`` (held-out fit with the initial conditions
+        fitted on the settle window), ``runout`` (period and harmonic amplitudes [track] of the
+        identified repeatable run-out), ``t_stat`` (|gain| / std per mode), ``std_inflation_median``
+        (sandwich / plain std), ``scan_added``, ``pencil_rejected``, ``samples_per_s``.
     """
     plant: ModalPlant
     method: str
