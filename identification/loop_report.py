@@ -124,7 +124,7 @@ def dependence(plant: ModalPlant, data: Data, val: Data | None = None, names=Non
             label, on, ch, unit, k = DEPENDENCE_TESTS[name]
             xsrc = {"position": data.log.position_track, "abs_current": np.abs(data.log.current_a),
                     "current": data.log.current_a, "time": data.log.time_s}[on]
-            edges, xs = _bins(xsrc[data.windows.index()], k, quantile=(on == "position"))
+            edges, xs = _bins(xsrc[data.windows.index()], k, quantile=(on != "time"))
             spec = {"on": on, "channel": ch, "edges": edges}
             cols = _features(eng, data, spec)
             vcols = None if veng is None else _features(veng, val, spec)
@@ -369,6 +369,8 @@ def fig_dependence(R, path):
         xl = {"position": "position [track]", "abs_current": "|current| [A]", "current": "current [A]",
               "time": "time [s]"}
         ax.set_xlabel(next((v for k, v in xl.items() if name.endswith(k)), "sign of the velocity [-]"))
+        if name.endswith("current"):        # quantile bins crowd near zero current
+            ax.set_xscale("symlog", linthresh=max(1e-4, float(np.min(np.abs(d.x[d.x != 0]))) if np.any(d.x) else 1e-3))
         ax.legend(fontsize=8)
     for ax in axes.ravel()[len(names):]:
         ax.axis("off")

@@ -33,11 +33,12 @@ if str(ROOT) not in sys.path:
 
 from identification.closing import close_loop  # noqa: E402
 from identification.effects import Effect  # noqa: E402
-from identification.loop_report import figures, markdown  # noqa: E402
+from identification.loop_report import FIGURES, figures, markdown  # noqa: E402
 from identification.plant import Mode, atomic_write_text  # noqa: E402
 from seekopt.presets import default_truth_plant  # noqa: E402
 from seekopt.synth import SynthConfig, synthesize  # noqa: E402
 
+FULL_FIGURES = ("friction", "rro", "dead_zone")   #: cases with every figure; others: residual_seeks.png only
 EFFECTS = ["input_delay", "amplifier_lag", "pivot_spring_damper", "position_bias", "friction",
            "torque_constant_variation", "current_saturation", "periodic_disturbance", "extra_mode"]
 OTHER = ["clean", "rro", "two", "dead_zone", "time_varying_gain"]
@@ -220,7 +221,12 @@ def run_case(case: str, seed: int, n_seeks: int, model: str = "standin", out: Pa
                         for k, v in param_error(n, truth, R.plant, log).items()}
     if out is not None:
         d = out / f"{case}"
-        figs = figures(R, d)
+        if case in FULL_FIGURES:
+            figs = figures(R, d)
+        else:
+            d.mkdir(parents=True, exist_ok=True)
+            FIGURES["residual_seeks.png"](R, d / "residual_seeks.png")
+            figs = ["residual_seeks.png"]
         atomic_write_text(d / "loop_report.md", markdown(R, figs, "."))
         atomic_write_text(d / "report.json", json.dumps(R.report(), indent=2))
     return row
