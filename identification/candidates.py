@@ -9,14 +9,25 @@ a fraction of a track) and a velocity estimated from it, which makes most
 candidates linear in their parameters: their regressors are the model's response
 to a feature.  The others (delay, amplifier bandwidth, saturation limit,
 extra-mode frequency and damping, spindle frequency) are found by 1-D/2-D search
-with the linear parameters projected out (variable projection).  Coulomb friction
-is refined by ``DiscretePlant`` simulation: when the head sticks (dwell) only
-the model's own state reproduces the friction force.
+with the linear parameters projected out (variable projection).  Friction is
+fitted with a fast sticking model (a head at rest holds while the applied force
+is below the Coulomb level) and then refined by ``DiscretePlant`` simulation:
+when the head sticks only the model's own state reproduces the friction force,
+and the rigid body turns a 1e-6 A bias error into a visible position error.
 
-Every candidate re-fits the base parameters ``k0`` and ``bias_a`` with it.  The
-criterion is the output error (what is reported); information criteria use an
-AR model of the residual (:func:`bic`) and parameter significance a covariance
-robust to correlation within a window (:func:`cluster_cov`).
+Every candidate is re-fitted jointly with the base: ``k0``, ``bias_a``, the gains
+of the declared modes (an identification may have let them absorb the effect)
+and the linear parameters of the effects already accepted
+(:meth:`Engine.base_cols`).  The criterion is the output error (what is
+reported), not a prewhitened one: an AR noise model estimated from a residual
+that still contains the effect whitens the effect away.  Information criteria
+use an AR model of each final residual (:func:`bic`) and significance tests a
+covariance robust to any correlation within a seek (:func:`cluster_cov`).
+
+Where the data cannot tell candidates apart the parameterisation decides: an
+amplifier lag faster than fs/2 is reported as a fractional input delay, an extra
+mode within max(3 zeta, 2 %) of a declared mode as a misfit of that mode (not
+added), an extra mode whose damping reaches ``ZETA_MAX`` as no resonance.
 
 Units: tracks, A, s, Hz.
 """
@@ -26,14 +37,14 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import least_squares, lsq_linear, minimize, minimize_scalar
+from scipy.optimize import lsq_linear, minimize, minimize_scalar
 
 from .effects import (AmplifierLag, CurrentSaturation, ExtraMode, Friction, InputDelay,
                       PeriodicDisturbance, PivotSpringDamper, PositionBias, TorqueConstantVariation)
 from .logs import SeekLog
 from .plant import ModalPlant, Mode
-from .residual import (LinearModel, Windows, detect_spindle, eval_forces, eval_inputs, eval_outputs,
-                       simulate, velocity_estimate)
+from .residual import (LinearModel, Windows, detect_spindle, eval_forces, eval_inputs, eval_outputs, simulate,
+                       velocity_estimate)
 
 __all__ = ["Data", "Engine", "Fit", "CANDIDATES", "fit_candidate", "refit_base", "bic",
            "cluster_cov", "lstsq", "segments"]

@@ -22,7 +22,6 @@ Every reported error is on validation data, from the reference simulation.
 """
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, field
 

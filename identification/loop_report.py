@@ -370,7 +370,13 @@ def fig_dependence(R, path):
               "time": "time [s]"}
         ax.set_xlabel(next((v for k, v in xl.items() if name.endswith(k)), "sign of the velocity [-]"))
         if name.endswith("current"):        # quantile bins crowd near zero current
-            ax.set_xscale("symlog", linthresh=max(1e-4, float(np.min(np.abs(d.x[d.x != 0]))) if np.any(d.x) else 1e-3))
+            ax.set_xscale("symlog", linthresh=1e-3)
+            ticks = [0, 1e-3, 1e-2, 1e-1, 1.0]
+            ticks = ticks if name.endswith("abs_current") else sorted({-t for t in ticks} | set(ticks))
+            xmax = float(np.max(np.abs(d.x))) * 1.5
+            ax.set_xticks([t for t in ticks if abs(t) <= xmax])
+            ax.set_xticklabels([f"{t:g}" for t in ticks if abs(t) <= xmax], fontsize=8)
+            ax.set_xlim(0 if name.endswith("abs_current") else -xmax, xmax)
         ax.legend(fontsize=8)
     for ax in axes.ravel()[len(names):]:
         ax.axis("off")

@@ -2,11 +2,14 @@
 
 The model is simulated from the *measured* current with the one discretisation
 (:class:`identification.plant.DiscretePlant`).  The rigid body integrates any
-force error twice, so the simulation is **re-anchored per window** (by default
-one window per seek, from the target change to the next one): in each window
-the rigid-body position and velocity at the window start are linear nuisance
-parameters fitted by least squares; modes, amplifier and delay-line states carry
-over from the previous window.  ``residual = measured - simulated`` [track].
+force error twice, so the simulation is **anchored per window**: each seek
+(target change to the next one) is simulated from rest at its start (previous
+current held) and cut into windows of at most 10 ms (:func:`seek_windows`); at
+each window start the rigid-body position and velocity are linear nuisance
+parameters fitted by least squares, while modes, amplifier and delay-line states
+carry on through the seek.  ``residual = measured - simulated`` [track].  (The
+force noise integrated twice grows like window length^1.5; 10 ms keeps it near
+the sensor-noise level on the benchmark drive.)
 
 Two equivalent engines:
 
@@ -23,8 +26,8 @@ Welch spectra and coherence of residual vs current (:func:`spectra`),
 synchronous average over spindle revolutions (:func:`synchronous_average`,
 :func:`detect_spindle`) and Billings-Zhu / Billings-Voon nonlinear correlation
 tests (:func:`nonlinear_tests`).  Dependence of the residual on position,
-velocity sign, |current| and current x position is measured in
-:func:`identification.candidates.dependence`.
+velocity sign, |current|, current x position and time is measured in
+:func:`identification.loop_report.dependence`.
 """
 from __future__ import annotations
 
@@ -108,8 +111,8 @@ def seek_windows(log: SeekLog, max_len_s: float | None = 0.010, min_len: int = 3
 # ---------------------------------------------------------------- vectorised effects
 def velocity_estimate(log: SeekLog, window: int = 9) -> np.ndarray:
     """Head velocity [track/s] from the measured position (Savitzky-Golay derivative)."""
-    w = min(window | 1, (log.n - 1) | 1 if log.n % 2 == 0 else log.n)
-    return savgol_filter(log.position_track, max(w, 5), 2, deriv=1, delta=log.dt)
+    w = max(5, min(window | 1, log.n - (1 - log.n % 2)))
+    return savgol_filter(log.position_track, w, 2, deriv=1, delta=log.dt)
 
 
 def eval_inputs(effects, u: np.ndarray, position: np.ndarray) -> np.ndarray:
