@@ -124,8 +124,16 @@ def mode_response(u, freq_hz: float, zeta: float, dt: float, delay_s: float = 0.
 
 
 def mode_regressors(u, freqs_hz, zetas, dt: float, delay_s: float = 0.0, steady: bool = True) -> np.ndarray:
-    """Matrix of unit-mode responses, one column per mode: ``Y[:, r] = y_r = h_r * u`` (eq. (9))."""
+    """Matrix of unit-mode responses, one column per mode: ``Y[:, r] = y_r = h_r * u`` (eq. (9)).
+
+    ``u`` of shape ``(n, L)`` is a multirate current, ``u[k, j]`` held over the ``j``-th of ``L``
+    equal sub-intervals of sample ``k`` (:meth:`identification.logs.SeekLog.input_current`): the
+    modes are then discretised at ``dt / L`` and sampled at the log's instants (exact hold)."""
     u = np.asarray(u, dtype=float)
+    if u.ndim == 2:
+        L = u.shape[1]
+        fine = mode_regressors(u.reshape(-1), freqs_hz, zetas, dt / L, delay_s, steady)
+        return np.asfortranarray(fine[::L])
     filters = mode_filters(freqs_hz, zetas, dt, delay_s)
     out = np.empty((len(u), len(filters)), order="F")
     for r, (b, a) in enumerate(filters):

@@ -2,7 +2,9 @@
 
 ``identify(log, method="robust" | "paper", **options) -> Identification``.  Only the columns a real
 drive logs are used: ``time_s``, ``current_a``, ``position_track``, ``target_track`` (never the
-extra columns of the synthetic drive).
+synthetic drive's feedforward or reference columns); a multirate drive's sub-step currents
+``current_sub1_a`` .. ``current_subL_a``, when logged, replace ``current_a`` in the robust method
+(exact hold, :meth:`identification.logs.SeekLog.input_current`).
 
 ``method="paper"`` (Sections 2-3 of the seed paper, in order)
     1. eq. (8): rigid-body ``b0, b1`` by LS over each seek (start to end, position relative to the
@@ -137,7 +139,7 @@ def predict_segments(log: SeekLog, plant: ModalPlant, segments, init=None, stead
     initial position and velocity fitted by LS over ``init[j] = (a, b)`` (log indices inside the
     segment; default the whole segment), plus the identified run-out (:func:`runout_signal`) if given.
     """
-    dt, u = log.dt, log.current_a
+    dt, u = log.dt, log.input_current()
     starts = [a for a, _ in segments]
     d = plant.delay_s
     y = plant.k0 * (zoh_rigid_response(u, dt, d, starts) + plant.bias_a * bias_response(len(u), dt, starts))
@@ -294,7 +296,7 @@ def _stage(segs, max_rows, history):
 
 def _identify_robust(log: SeekLog, fit_seeks, opts, timing) -> Identification:
     fs, dt = log.sample_rate_hz, log.dt
-    u, y = log.current_a, log.position_track
+    u, y = log.input_current(), log.position_track     # (n, L) for a multirate log: exact hold
     lo, hi = opts["freq_range"]
     segs = [(s.start, s.end) for s in fit_seeks]
     ppo, diag, tabu, runout_hz = {}, {}, [], [0.0]

@@ -14,6 +14,12 @@ NPZ  One array per column plus ``metadata``: a JSON object string with the same 
 MAT  (v5, ``scipy.io.savemat``) one column vector per column plus ``metadata`` as the same JSON
      string (a MATLAB struct is accepted on read). Numeric, char and struct variables only.
 Row numbers in messages are 1-based and count data rows only (row = array index + 1).
+
+Multirate drives (optional): a drive that updates the current ``L`` times per position sample may
+log the ``L`` held values as extra columns ``current_sub1_a`` ... ``current_subL_a`` [A] (the value
+held over the ``j``-th of ``L`` equal sub-intervals after the sample instant); ``current_a`` is then
+their mean.  :meth:`SeekLog.input_current` returns them and the robust identification models the
+exact hold; without them the current is taken as held over the whole sample period.
 """
 from __future__ import annotations
 
@@ -42,6 +48,7 @@ MIN_SAMPLES = 64        #: fewest samples a log may have
 TIME_JITTER_TOL = 0.01  #: max |step - mean dt| / mean dt
 RATE_TOL = 1e-3         #: max relative disagreement of sample_rate_hz with the time column
 _RESERVED = ("seekopt-log", "sample_rate_hz", "track_pitch_nm")
+_SUBSTEP = re.compile(r"current_sub(\d+)_a")
 _MATLAB_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,62}\Z")
 
 
@@ -135,6 +142,29 @@ class SeekLog:
         """Nominal sample period ``1 / sample_rate_hz`` [s]."""
         return 1.0 / self.sample_rate_hz
 
+    def input_current(self) -> np.ndarray:
+        """The current as the plant sees it [A]: ``(n, L)`` sub-step currents of a multirate drive
+        (extra columns ``current_sub1_a`` .. ``current_subL_a``, see the module notes), else
+        ``current_a`` (held over the sample).
+
+        Raises
+        ------
+        LogError
+            Sub-step columns that are not numbered 1..L, or not finite (the row is named).
+        """
+        idx = sorted(int(m.group(1)) for k in self.extra if (m := _SUBSTEP.fullmatch(k)))
+        if not idx:
+            return self.current_a
+        name = self.source or "<arrays>"
+        if idx != list(range(1, len(idx) + 1)) or len(idx) < 2:
+            raise LogError(name, f"sub-step current columns must be current_sub1_a .. current_subL_a "
+                                 f"with L >= 2, got numbers {idx[:8]}")
+        u = np.column_stack([self.extra[f"current_sub{j}_a"] for j in idx])
+        if not np.isfinite(u).all():
+            row, col = np.argwhere(~np.isfinite(u))[0]
+            raise LogError(name, f"row {row + 1}: current_sub{col + 1}_a is not finite")
+        return u
+
     def slice(self, i0: int | None = None, i1: int | None = None) -> SeekLog:
         """Samples ``[i0, i1)`` (Python slice rules) as a new, unvalidated log; times stay absolute."""
         s = slice(i0, i1)
@@ -210,7 +240,9 @@ class SeekLog:
                                  f"by {100 * abs(rate * dt - 1):.3g} % (limit {100 * RATE_TOL:g} %)")
         if np.all(cols["target_track"] == cols["target_track"][0]):
             raise LogError(name, "no seek in log: target_track never changes")
-        return cls(**cols, sample_rate_hz=rate, track_pitch_nm=pitch, metadata=meta, extra=extras, source=source)
+        log = cls(**cols, sample_rate_hz=rate, track_pitch_nm=pitch, metadata=meta, extra=extras, source=source)
+        log.input_current()          # validates the optional sub-step current columns
+        return log
 
 
 # ------------------------------------------------------------------------------------------ reading

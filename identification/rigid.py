@@ -234,12 +234,20 @@ def zoh_rigid_response(current_a, dt: float, delay_s: float, starts) -> np.ndarr
     response runs on; samples before the first start are zero.  Per-segment initial position and
     velocity are left to :class:`SegmentProjector`.
 
+    ``current_a`` of shape ``(n, L)`` is a multirate current (``L`` held sub-steps per sample,
+    :meth:`identification.logs.SeekLog.input_current`): the response is computed at ``dt / L`` and
+    sampled at the log's instants.
+
     Returns
     -------
     ndarray
         Position [track per track/(A s^2)], i.e. multiply by ``k0``.
     """
     u = np.asarray(current_a, dtype=float)
+    if u.ndim == 2:
+        L = u.shape[1]
+        fine = zoh_rigid_response(u.reshape(-1), dt / L, delay_s, [L * int(s) for s in starts])
+        return fine[::L]
     n = len(u)
     m, gn, go = _rigid_gammas(dt, delay_s)
     pad = np.r_[np.full(m + 1, u[0]), u]

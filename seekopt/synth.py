@@ -12,6 +12,11 @@ Each seek: length drawn log-uniformly between ``min_tracks`` and ``max_tracks``
 windowed sine, current limit drawn in ``[0.5, 1] * imax_a`` (varied excitation), the
 shortest such profile within that limit (at least ``min_seek_s`` long), the reference from the firmware's rigid
 model (the paper's 2DOF), then a dwell (the settle window) of ``dwell_s``.
+
+The NSS controller updates the current twice per position sample (its notches run at
+twice the PES rate): ``current_a`` is the mean over the sample and, with
+``log_substeps`` (default), the held sub-step values are logged as ``current_sub1_a``,
+``current_sub2_a`` (the multirate columns of the log format).
 """
 from __future__ import annotations
 
@@ -50,6 +55,7 @@ class SynthConfig:
     rro: bool = True
     rro_scale: float = 1.0
     effects: list = field(default_factory=list)   # undeclared effects added to the truth
+    log_substeps: bool = True     # a multirate drive also logs current_sub1_a .. current_subL_a
 
     def to_dict(self) -> dict:
         d = dict(self.__dict__)
@@ -129,14 +135,17 @@ def synthesize(cfg: SynthConfig | None = None, plant: ModalPlant | None = None,
         r[s.start:end] = s.from_track + ref[:end - s.start]
         r[end:] = s.to_track
         target[s.start:] = s.to_track
-    sim = simulate_2dof(truth, controller, u_ff, r, disturbances=disturbances)
+    sim = simulate_2dof(truth, controller, u_ff, r, disturbances=disturbances, record_substeps=True)
     k_keep = int(round(cfg.preroll_s * fs)) - int(round(0.002 * fs))  # keep 2 ms before the first seek
     meta = {"generator": "seekopt.synth", "seed": str(cfg.seed),
             "truth_plant_hash": truth.hash(), "n_seeks": str(cfg.n_seeks)}
     sl = slice(max(k_keep, 0), n)
+    L = sim.current_sub_a.shape[1]          # a multirate drive logs its sub-step currents too
+    substeps = ({f"current_sub{j + 1}_a": sim.current_sub_a[sl, j] for j in range(L)}
+                if cfg.log_substeps and L > 1 else {})
     log = SeekLog.from_arrays(
         time_s=sim.time_s[sl] - sim.time_s[sl][0], current_a=sim.current_a[sl],
         position_track=sim.position_track[sl], target_track=target[sl], sample_rate_hz=fs,
         track_pitch_nm=truth.track_pitch_nm, metadata=meta,
-        extra={"u_ff_a": sim.ff_a[sl], "reference_track": r[sl]})
+        extra={"u_ff_a": sim.ff_a[sl], "reference_track": r[sl], **substeps})
     return log, truth

@@ -134,3 +134,18 @@ def test_detect_period_and_sandwich():
     Js = np.column_stack([np.ones(5000), np.sin(np.arange(5000) / 500)])
     cov2, cov2_w = sandwich_cov(Js, res2, np.array([0, 5000]), lags=10)
     assert np.sqrt(cov2[0, 0] / cov2_w[0, 0]) > 1.2
+
+
+@pytest.mark.parametrize("delay_samples", [0.0, 0.37, 1.5])
+def test_mode_regressors_multirate_hold_is_fine_rate_plant(delay_samples):
+    """(n, L) sub-step currents: the mode response equals plant.py's discretisation stepped at dt/L on
+    the held sub-step values, sampled at the log's instants -- and differs from holding their mean."""
+    L = 2
+    u = np.column_stack([current(600, 1), current(600, 2)])
+    for m in MODES:
+        fine = (ModalPlant(k0=K0, modes=[m], delay_s=delay_samples * DT).simulate_open_loop(u.reshape(-1), DT / L)
+                - ModalPlant(k0=K0, delay_s=delay_samples * DT).simulate_open_loop(u.reshape(-1), DT / L))[::L]
+        y = K0 * m.gain * mode_regressors(u, [m.freq_hz], [m.zeta], DT, delay_samples * DT)[:, 0]
+        np.testing.assert_allclose(y, fine, rtol=0, atol=1e-9 * np.abs(fine).max())
+        mean = K0 * m.gain * mode_response(u.mean(axis=1), m.freq_hz, m.zeta, DT, delay_samples * DT)
+        assert np.abs(mean - fine).max() > 1e-3 * np.abs(fine).max()

@@ -441,3 +441,28 @@ def test_segment_seeks_edge_cases():
         segment_seeks(log, settle_band=0)
     with pytest.raises(ValueError):
         settle_windows(log.slice(0, 100), seeks)
+
+
+def test_substep_current_columns(tmp_path):
+    """A multirate drive's sub-step currents (current_sub1_a .. current_subL_a) round-trip and come
+    back from input_current() as an (n, L) array; bad ones are a one-line error naming the file."""
+    n = 200
+    sub = np.random.default_rng(5).normal(size=(n, 2))
+    log = make_log(extra={"current_sub1_a": sub[:, 0], "current_sub2_a": sub[:, 1]})
+    np.testing.assert_array_equal(log.input_current(), sub)
+    assert make_log().input_current().shape == (n,)
+    for ext in (".csv", ".npz", ".mat"):
+        write_log(log, tmp_path / f"m{ext}")
+        np.testing.assert_array_equal(read_log(tmp_path / f"m{ext}").input_current(), sub)
+    bad = sub.copy()
+    bad[17, 1] = np.nan
+    nan = make_log(extra={"current_sub1_a": sub[:, 0], "current_sub2_a": sub[:, 1]})
+    nan.extra["current_sub2_a"] = bad[:, 1]          # from_arrays would refuse it: write it raw
+    np.savez(tmp_path / "nan.npz", **{c: getattr(nan, c) for c in logs.COLUMNS}, **nan.extra,
+             metadata=json.dumps({"sample_rate_hz": FS}))
+    expect_error(tmp_path / "nan.npz", "row 18", "current_sub2_a")
+    lines = csv_text(100).splitlines()
+    h = next(i for i, line in enumerate(lines) if line.startswith("time_s"))
+    lines[h:] = [lines[h] + ",current_sub1_a,current_sub3_a"] + [line + ",0.1,0.2" for line in lines[h + 1:]]
+    (tmp_path / "gap.csv").write_text("\n".join(lines) + "\n")
+    expect_error(tmp_path / "gap.csv", "current_sub1_a .. current_subL_a")

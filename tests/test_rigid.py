@@ -129,3 +129,17 @@ def test_rigid_fit_exact_on_noise_free_zoh_data():
     assert fit.bias_a == pytest.approx(0.004, rel=1e-5)
     assert fit.delay_s == pytest.approx(1.37 * DT, rel=1e-4)
     assert fit.residual_rms < 1e-5
+
+
+def test_zoh_rigid_response_multirate_hold():
+    """(n, 2) sub-step currents: the rigid response is the fine-rate (dt/2) one sampled at the log's
+    instants; with equal sub-steps it is the single-rate response."""
+    rng = np.random.default_rng(4)
+    u = rng.normal(size=(300, 2)) * 0.1
+    starts = [20, 150]
+    R = zoh_rigid_response(u, DT, 0.6 * DT, starts)
+    fine = zoh_rigid_response(u.reshape(-1), DT / 2, 0.6 * DT, [2 * s for s in starts])
+    np.testing.assert_array_equal(R, fine[::2])
+    same = np.repeat(u[:, :1], 2, axis=1)
+    np.testing.assert_allclose(zoh_rigid_response(same, DT, 0.6 * DT, starts),
+                               zoh_rigid_response(same[:, 0], DT, 0.6 * DT, starts), rtol=1e-9, atol=1e-20)
