@@ -23,7 +23,6 @@ exact hold; without them the current is taken as held over the whole sample peri
 """
 from __future__ import annotations
 
-import contextlib
 import csv
 import io
 import json
@@ -31,13 +30,14 @@ import math
 import os
 import re
 import struct
-import tempfile
 import zipfile
 import zlib
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
 import numpy as np
+
+from .fileio import atomic_write_bytes
 
 __all__ = ["COLUMNS", "MIN_SAMPLES", "LogError", "SeekLog", "Seek", "read_log", "write_log",
            "segment_seeks", "settle_windows"]
@@ -481,25 +481,7 @@ def write_log(log: SeekLog, path: str | os.PathLike) -> None:
     data = writer(name, SeekLog.from_arrays(log.time_s, log.current_a, log.position_track, log.target_track,
                                             log.sample_rate_hz, track_pitch_nm=log.track_pitch_nm,
                                             metadata=log.metadata, extra=log.extra, source=name))
-    try:
-        mode = os.stat(name).st_mode & 0o7777
-    except OSError:
-        umask = os.umask(0)
-        os.umask(umask)
-        mode = 0o666 & ~umask
-    fd, tmp = tempfile.mkstemp(dir=os.path.dirname(os.path.abspath(name)), prefix=f".{os.path.basename(name)}.",
-                               suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.chmod(tmp, mode)
-        os.replace(tmp, name)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
+    atomic_write_bytes(name, data)
 
 
 # ------------------------------------------------------------------------------------- segmentation

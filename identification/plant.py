@@ -32,7 +32,6 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -41,6 +40,7 @@ from scipy.linalg import expm
 
 from .effects import (AmplifierLag, Effect, ExtraMode, InputDelay, PivotSpringDamper,
                       effect_from_dict)
+from .fileio import atomic_write_text
 
 __all__ = ["Mode", "ModalPlant", "DiscretePlant", "PlantError", "TRACK_PITCH_PER_TPI_NM",
            "atomic_write_text"]
@@ -456,16 +456,3 @@ def _zoh(A: np.ndarray, B: np.ndarray, h: float):
     M[:n, n:] = B * h
     E = expm(M)
     return E[:n, :n], E[:n, n:]
-
-
-def atomic_write_text(path: str | Path, text: str) -> None:
-    """Write ``text`` to ``path`` via a temporary file and ``os.replace``: an existing
-    file is never left half-written."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        tmp.write_text(text)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()

@@ -198,7 +198,7 @@ def _c_array(ctype: str, name: str, values, per_line: int = 12) -> str:
 
 def write_c(ts: TableSet, outdir, basename: str = BASENAME) -> list[Path]:
     """Write ``<basename>.h`` and ``<basename>.c``; returns their paths."""
-    from .sweep import write_atomic
+    from identification.fileio import atomic_write_text as write_atomic
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     m, guard = ts.meta, basename.upper() + "_H"
@@ -266,7 +266,7 @@ _CSV_COLS = ["table", "tpi", "tracks", "sample", "ff_q15", "ref_q", "ff_a", "ref
 def write_csv(ts: TableSet, outdir, basename: str = BASENAME) -> list[Path]:
     """One long CSV: ``##`` banner lines, ``# key: value`` metadata lines, then a row per table sample
     (``ff_q15``/``ff_a`` empty after the feedforward ends)."""
-    from .sweep import write_atomic
+    from identification.fileio import atomic_write_text as write_atomic
     buf = io.StringIO()
     buf.write(_banner(ts, "##", "Fixed-point seek tables, one row per sample."))
     for k, v in ts.meta.items():
@@ -286,7 +286,7 @@ def write_csv(ts: TableSet, outdir, basename: str = BASENAME) -> list[Path]:
 
 def write_json(ts: TableSet, outdir, basename: str = BASENAME) -> list[Path]:
     """JSON ``{"meta": ..., "tables": [{tpi, tracks, ff_len, ref_len, ff_q15, ref_q, ff_a, ref_track}]}``."""
-    from .sweep import write_atomic
+    from identification.fileio import atomic_write_text as write_atomic
     d = {"generated_by": f"seekopt {ts.meta['tool_version']} (seekopt export)", "meta": ts.meta,
          "tables": [{"tpi": t.tpi, "tracks": t.tracks, "ff_len": t.ff_len, "ref_len": t.ref_len,
                      "ff_q15": [int(v) for v in t.ff_q15], "ref_q": [int(v) for v in t.ref_q],

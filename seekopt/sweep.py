@@ -33,7 +33,7 @@ length); everything else (plant, controller, current limit, settle band,
 designer, kinds) must match, or :class:`SweepError` is raised; cells computed by
 other code (:func:`code_hash`) are reused with a warning.
 
-Engines: ``serial`` (in process), ``process`` (default; a local
+Engines (:mod:`seekopt.engines`): ``serial`` (in process), ``process`` (default; a local
 :class:`concurrent.futures.ProcessPoolExecutor`; Ipopt/MUMPS is not thread-safe,
 so processes, and a lock serialises cells within any one process), and Dask
 (``local`` starts a loopback :class:`dask.distributed.LocalCluster`, or a
@@ -57,9 +57,11 @@ from pathlib import Path
 
 import numpy as np
 
+from identification.fileio import atomic_write_text as write_atomic
 from identification.plant import TRACK_PITCH_PER_TPI_NM, ModalPlant
 
 from .controller import Controller
+from .engines import EngineError, iter_dask, iter_pool, iter_serial, make_pool
 from .profiles import t_bang_bang
 
 __all__ = ["SweepError", "SweepConfig", "SweepSummary", "parse_tpi", "parse_tracks", "cell_key",
@@ -425,33 +427,6 @@ def _f(x):
 
 
 # ------------------------------------------------------------------ persistence
-def _fsync_dir(path: Path) -> None:
-    try:
-        fd = os.open(path, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-    except OSError:
-        pass
-
-
-def write_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` durably: temporary file, fsync, ``os.replace``, fsync folder."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
-    try:
-        with open(tmp, "w") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    _fsync_dir(path.parent)
-
-
 def _journal(outdir: Path, line: str) -> None:
     fd = os.open(outdir / "journal.log", os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
     try:
@@ -514,77 +489,11 @@ class SweepSummary:
         return self.computed / self.wall_s if self.wall_s > 0 else float("nan")
 
 
-def _iter_serial(payloads):
-    for p in payloads:
-        try:
-            yield p, compute_cell(p), None
-        except Exception as exc:  # noqa: BLE001
-            yield p, None, exc
-
-
-def make_pool(workers: int | None = None):
-    """A process pool for :func:`run_sweep` (``spawn``: no fork of a threaded parent; a script that
-    runs a sweep on it needs the ``if __name__ == "__main__":`` guard)."""
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor
-    return ProcessPoolExecutor(max_workers=workers or os.cpu_count() or 1, mp_context=mp.get_context("spawn"),
-                               initializer=_worker_init)
-
-
-def _worker_init() -> None:
-    """Pool workers leave Ctrl-C to the driving process (which saves what is done and stops)."""
-    import signal
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
-def _iter_pool(payloads, workers, executor=None):
-    from concurrent.futures import as_completed
-    ex = executor or make_pool(workers)
-    futs = {ex.submit(compute_cell, p): p for p in payloads}
+def _engine_errors_as_sweep_errors(it):
     try:
-        for fut in as_completed(futs):
-            exc = fut.exception()
-            yield futs[fut], (None if exc else fut.result()), exc
-    finally:
-        for f in futs:
-            f.cancel()
-        if executor is None:
-            ex.shutdown(wait=True, cancel_futures=True)
-
-
-def _iter_dask(payloads, address, workers, client=None):
-    from dask.distributed import Client, LocalCluster, as_completed
-    cluster = own = None
-    if client is None:
-        try:
-            if address == "local":
-                cluster = LocalCluster(n_workers=workers or 2, threads_per_worker=1, processes=True,
-                                       host="127.0.0.1", dashboard_address=None)
-                client = own = Client(cluster)
-            else:
-                client = own = Client(address, timeout="20s")
-        except (OSError, RuntimeError, TimeoutError, ValueError) as exc:
-            if cluster is not None:
-                cluster.close()
-            where = "cannot start a local Dask cluster" if address == "local" else f"cannot connect to {address}"
-            raise SweepError(f"dask: {where} ({_one_line(exc)})") from None
-    try:
-        futs = {}
-        for p in payloads:
-            f = client.submit(compute_cell, p, pure=False, key=f"seekopt-cell-{p['config']['config_hash']}-"
-                              f"{cell_key(p['tpi'], p['tracks'])}-{uuid.uuid4().hex[:8]}")
-            futs[f.key] = (f, p)
-        for f in as_completed([f for f, _ in futs.values()]):
-            p = futs[f.key][1]
-            try:
-                yield p, f.result(), None
-            except Exception as exc:  # noqa: BLE001
-                yield p, None, exc
-    finally:
-        if own is not None:
-            own.close()
-        if cluster is not None:
-            cluster.close()
+        yield from it
+    except EngineError as exc:
+        raise SweepError(str(exc)) from None
 
 
 def run_sweep(cfg: SweepConfig, outdir, *, engine: str = "process", workers: int | None = None,
@@ -627,12 +536,13 @@ def run_sweep(cfg: SweepConfig, outdir, *, engine: str = "process", workers: int
     t0 = time.perf_counter()
     if payloads:
         _journal(outdir, f"run {cfg.hash()} engine={engine} todo={len(todo)} saved={len(saved)}")
-        it = (_iter_serial(payloads) if engine == "serial" else
-              _iter_pool(payloads, min(workers, len(payloads)), executor) if engine == "process" else
-              _iter_dask(payloads, engine, workers, client))
+        it = (iter_serial(compute_cell, payloads) if engine == "serial" else
+              iter_pool(compute_cell, payloads, min(workers, len(payloads)), executor) if engine == "process" else
+              iter_dask(compute_cell, payloads, engine, workers, client,
+                        key=lambda p: f"cell-{p['config']['config_hash']}-{cell_key(p['tpi'], p['tracks'])}"))
         with tqdm(total=total, initial=summary.skipped, unit="cell", desc="sweep", file=sys.stderr,
                   disable=not progress, dynamic_ncols=True, smoothing=0.1) as bar:
-            for p, cell, exc in it:
+            for p, cell, exc in _engine_errors_as_sweep_errors(it):
                 key = cell_key(p["tpi"], p["tracks"])
                 if exc is not None:
                     summary.engine_errors[key] = _one_line(exc)
