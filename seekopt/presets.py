@@ -22,6 +22,7 @@ from identification.plant import ModalPlant, Mode
 from .simulate import Disturbances
 
 __all__ = ["benchmark_data", "nss_plant", "default_truth_plant", "SEEK_MODES", "nss_disturbances",
+           "nss_controller_single_rate",
            "PES_RATE_HZ"]
 
 #: The benchmark's servo (PES) rate: 7200 rpm x 220 sectors = 26.4 kHz.
@@ -81,3 +82,20 @@ def nss_disturbances(seed: int = 0, rro: bool = True, scale_rro: float = 1.0) ->
                         force_noise_a=d["force_noise_sigma_A"], flutter=flutter,
                         rro_harmonics=harmonics, rro_sequence_track=seq, spindle_hz=spindle_hz,
                         seed=seed)
+
+
+def nss_controller_single_rate():
+    """The NSS PID with its notches (4.1, 5, 7, 12.3 kHz) redesigned at the PES rate (no multirate
+    section, :func:`scipy.signal.iirnotch`): a drive whose current changes only at the log's
+    samples, so the logged current is exactly the current the plant saw.  For studies and tests
+    that separate the multirate hold from the identification method."""
+    from scipy import signal
+    from .controller import Controller
+    nss = Controller.nss()
+    fs = float(nss.sample_rate_hz)
+    secs = nss.to_dict()["sections"][:1]
+    for f0, q in ((4100, 2.0), (5000, 3.0), (7000, 2.0), (12300, 2.0)):
+        b, a = signal.iirnotch(f0, q, fs)
+        secs.append({"kind": "tf", "num": list(b), "den": list(a), "rate_multiple": 1})
+    return Controller.from_json({"schema": 1, "name": "PID + notches, single rate", "sample_rate_hz": fs,
+                                 "sections": secs})

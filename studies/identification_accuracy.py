@@ -186,12 +186,13 @@ def _e2e_log(seed, n_seeks, drive, cache_dir):
     import time
     from identification.logs import read_log, write_log
     from identification.plant import ModalPlant
+    from seekopt.presets import nss_controller_single_rate
     from seekopt.synth import SynthConfig, synthesize
     name = f"e2e_{drive}_{seed}_{n_seeks}"
     if cache_dir and os.path.exists(os.path.join(cache_dir, name + ".npz")):
         return (read_log(os.path.join(cache_dir, name + ".npz")),
                 ModalPlant.load(os.path.join(cache_dir, name + ".json"))), float("nan")
-    controller = _single_rate_controller() if drive == "single-rate" else None
+    controller = nss_controller_single_rate() if drive == "single-rate" else None
     t = time.perf_counter()
     log, truth = synthesize(SynthConfig(n_seeks=n_seeks, seed=seed), controller=controller)
     t = time.perf_counter() - t
@@ -200,19 +201,6 @@ def _e2e_log(seed, n_seeks, drive, cache_dir):
         write_log(log, os.path.join(cache_dir, name + ".npz"))
         truth.to_json(os.path.join(cache_dir, name + ".json"))
     return (log, truth), t
-
-
-def _single_rate_controller():
-    """NSS PID with notches at the PES rate (4.1, 5, 7, 12.3 kHz): no multirate section."""
-    from scipy import signal
-    from seekopt.controller import Controller
-    fs = 26400.0
-    secs = Controller.nss().to_dict()["sections"][:1]
-    for f0, q in ((4100, 2.0), (5000, 3.0), (7000, 2.0), (12300, 2.0)):
-        b, a = signal.iirnotch(f0, q, fs)
-        secs.append({"kind": "tf", "num": list(b), "den": list(a), "rate_multiple": 1})
-    return Controller.from_json({"schema": 1, "name": "PID + notches, single rate", "sample_rate_hz": fs,
-                                 "sections": secs})
 
 
 def _e2e_rows(seed, drive, log, truth, ids):

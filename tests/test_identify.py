@@ -30,6 +30,7 @@ from identification.logs import LogError, SeekLog, segment_seeks, write_log
 from identification.plant import ModalPlant, Mode
 from identification.rigid import SegmentProjector
 from identification.gains import mode_response
+from seekopt.presets import nss_controller_single_rate
 from seekopt.synth import SynthConfig, synthesize
 
 NFFT = 256
@@ -94,20 +95,6 @@ def alt_truth():
     return p.copy(modes=modes, bias_a=-0.006)
 
 
-def single_rate_controller():
-    """The NSS PID with notches at the PES rate (no multirate section): the plant is stepped at the
-    log's rate, so the logged current is exactly the current the plant saw."""
-    from scipy import signal
-    from seekopt.controller import Controller
-    fs = 26400.0
-    secs = Controller.nss().to_dict()["sections"][:1]
-    for f0, q in ((4100, 2.0), (5000, 3.0), (7000, 2.0), (12300, 2.0)):
-        b, a = signal.iirnotch(f0, q, fs)
-        secs.append({"kind": "tf", "num": list(b), "den": list(a), "rate_multiple": 1})
-    return Controller.from_json({"schema": 1, "name": "PID + notches, single rate", "sample_rate_hz": fs,
-                                 "sections": secs})
-
-
 # ------------------------------------------------------------------------------------ fixtures
 @pytest.fixture(scope="session")
 def default_log():
@@ -132,7 +119,7 @@ def alt_logs():
     """Another truth, seed and current limit: on the default (multirate) drive and on a single-rate drive."""
     truth = alt_truth()
     multi = synthesize(SynthConfig(n_seeks=100, seed=7, imax_a=0.5), plant=truth)
-    single = synthesize(SynthConfig(n_seeks=100, seed=11, imax_a=0.4), plant=truth, controller=single_rate_controller())
+    single = synthesize(SynthConfig(n_seeks=100, seed=11, imax_a=0.4), plant=truth, controller=nss_controller_single_rate())
     return {"multirate": (multi, identify(multi[0])), "single-rate": (single, identify(single[0]))}
 
 
