@@ -3,7 +3,8 @@ import numpy as np
 import pytest
 
 from identification.plant import ModalPlant, Mode
-from seekopt.bench import format_table, mode_response, perturbed_plant, run_bench
+from seekopt.bench import format_table, mode_response, perturbed_plant, run_bench, tuned_baseline
+from seekopt.metrics import SeekMetrics, evaluate_profile
 from seekopt.cli import main
 from seekopt.controller import Controller
 from seekopt.presets import default_truth_plant
@@ -50,12 +51,31 @@ def test_run_bench_table_and_figure(plants, tmp_path):
     truth, design, _ = plants
     res = run_bench(design, Controller.nss(), 10.0, 0.3, truth=truth, robust=None, figures=tmp_path)
     labels = [r.label for r in res.rows]
-    assert labels == ["sine", "windowed_sine", "optimal"]
+    assert labels == ["sine", "windowed_sine", "sine tuned", "windowed_sine tuned", "optimal"]
     best = min(res.row("sine").settle_time_s, res.row("windowed_sine").settle_time_s)
-    assert res.row("optimal").ratio_best_baseline == pytest.approx(res.row("optimal").settle_time_s / best)
+    opt = res.row("optimal")
+    assert opt.ratio_best_baseline == pytest.approx(opt.settle_time_s / best)
+    tuned = min(res.row("sine tuned").settle_time_s, res.row("windowed_sine tuned").settle_time_s)
+    assert tuned <= best and opt.ratio_tuned_baseline == pytest.approx(opt.settle_time_s / tuned)
+    assert isinstance(opt.metrics, SeekMetrics) and opt.settle_time_s == opt.metrics.settle_time_s
+    with pytest.raises(AttributeError):
+        opt.no_such_field
     text = format_table(res)
-    assert "windowed_sine" in text and "T_bb" in text
+    assert "windowed_sine" in text and "T_bb" in text and "/tuned" in text
     assert res.figures and res.figures[0].exists()
+
+
+def test_tuned_baseline_is_best_length(plants):
+    """The tuned baseline settles no later than the shortest one and than any other tried length."""
+    truth, design, _ = plants
+    ctrl = Controller.nss()
+    prof, m = tuned_baseline(design, ctrl, "sine", 20.0, 0.3, factors=(1.0, 1.5, 2.0))
+    n0 = prof.meta["tuned_from_samples"]
+    assert prof.seek_samples in {n0, round(1.5 * n0), 2 * n0}
+    for f in (1.0, 1.5, 2.0):
+        p2, m2 = tuned_baseline(design, ctrl, "sine", 20.0, 0.3, factors=(f,))
+        assert m.settle_time_s <= m2.settle_time_s
+    assert m.settle_time_s == evaluate_profile(design, ctrl, prof).settle_time_s
 
 
 def test_cli_design_writes_profile(plants, tmp_path, capsys):

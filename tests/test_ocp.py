@@ -13,8 +13,9 @@ from seekopt import qp as qpmod
 from seekopt.bench import baseline_profile, perturbed_plant
 from seekopt.controller import Controller
 from seekopt.metrics import evaluate_profile, simulate_profile
+from identification.plant import Mode
 from seekopt.ocp import (DesignError, DesignInfeasible, DesignResult, RobustSpec, SeekDesigner,
-                         design_seek)
+                         design_seek, seek_induced)
 from seekopt.presets import SEEK_MODES, default_truth_plant
 from seekopt.profiles import Profile, rigid_endpoint_matrix, t_bang_bang
 
@@ -51,17 +52,49 @@ def test_robust_spec_parsing_and_plants(setup):
     assert (s.freq_pct, s.zeta_pct, s.gain_pct, s.delay_s, s.n_samples, s.objective) == (5, 30, 30, 2e-6, 3, "worst")
     assert RobustSpec.from_string("default") == RobustSpec()
     assert RobustSpec.from_string(s.to_string()) == s
-    for bad in ("freq", "speed=3", "freq=x", "objective=best"):
+    assert RobustSpec.from_string(RobustSpec().to_string()) == RobustSpec()
+    for bad in ("freq", "speed=3", "freq=x", "objective=best", "gain=-1"):
         with pytest.raises(ValueError):
             RobustSpec.from_string(bad)
     plants = s.plants(design)
-    assert plants[0] is design and len(plants) == 1 + 4 + 2 + 3     # nominal, freq x delay, gain +-, draws
+    assert plants[0] is design and len(plants) == 1 + 2 * 2 + 2 + 3     # nominal, freq x delay, gain +-, array
     f0 = np.array([m.freq_hz for m in design.modes])
+    seek = np.array([seek_induced(m) for m in design.modes])
+    assert seek.any() and not seek.all()
     for p in plants[1:]:
-        f = np.array([m.freq_hz for m in p.modes])
-        assert np.all(np.abs(f / f0 - 1) <= 0.05 + 1e-12) and p.delay_s >= 0
+        rel = np.abs(np.array([m.freq_hz for m in p.modes]) / f0 - 1)
+        assert np.all(rel[seek] <= 0.05 + 1e-12) and np.all(rel[~seek] <= 0.01 + 1e-12)   # 1 %: other modes
         assert abs(p.delay_s - design.delay_s) <= 2e-6 + 1e-15
+    assert np.isclose(max(np.max(np.abs(np.array([m.freq_hz for m in p.modes]) / f0 - 1)[seek]) for p in plants), 0.05)
     assert RobustSpec(n_samples=2, seed=1).plants(design)[-1].modes != RobustSpec(n_samples=2, seed=2).plants(design)[-1].modes
+
+
+def test_robust_ranges_floor_at_reported_std(setup):
+    """Every range is at least n_sigma reported std; modes near Nyquist are not varied."""
+    truth, ctrl, design = setup
+    m0 = Mode(1000.0, 0.01, 0.5, std={"freq_hz": 50.0, "zeta": 0.0, "gain": 0.0})    # std 5 %: 15 % range
+    hf = Mode(0.47 * ctrl.sample_rate_hz, 0.01, 1.0)
+    p = design.copy(modes=[m0, hf], std={"delay_s": 1e-6})
+    f, z, g, d, k = RobustSpec().ranges(p)
+    assert f[0] == pytest.approx(0.15) and f[1] == 0 and g[1] == 0
+    assert g[0] == pytest.approx(0.08) and d == pytest.approx(3e-6) and k == 0
+
+
+def test_orthogonal_array_vertices_cover_all_sign_pairs(setup):
+    """Default set: every pair of varied factors (frequency and gain of each mode, delay) takes all four
+    sign combinations on the array's vertices."""
+    truth, ctrl, design = setup
+    spec = RobustSpec()
+    plants = spec.plants(design)
+    arr = plants[-spec.n_samples:]
+    f0 = np.array([m.freq_hz for m in design.modes]); g0 = np.array([m.gain for m in design.modes])
+    signs = np.array([np.r_[np.sign([m.freq_hz for m in p.modes] - f0), np.sign([m.gain for m in p.modes] / g0 - 1),
+                            np.sign(p.delay_s - design.delay_s)] for p in arr])
+    assert signs.shape[1] <= 15 and np.all(signs != 0)
+    for i in range(signs.shape[1]):
+        for j in range(i + 1, signs.shape[1]):
+            pairs = {(a, b) for a, b in zip(signs[:, i], signs[:, j])}
+            assert len(pairs) == 4
 
 
 @pytest.mark.parametrize("K", [10.0, -50.0, 0.5])
@@ -174,11 +207,8 @@ def test_robust_design_beats_baselines_on_truth(setup):
 
 
 # ------------------------------------------------------------------------- acceptance (slow)
-#: Uncertainty of the identified plant (identification on synthetic logs: frequencies within 0.5 %,
-#: gains within 15 %, delay within 0.1 us of the truth; floors, not the optimistic reported std).
-IDENT_ROBUST = "freq=1,zeta=30,gain=15,delay=1e-6"
-#: Wide uncertainty for the frequency-shift test (5 % on every mode, 3 us delay).
-WIDE_ROBUST = "freq=5,zeta=30,gain=30,delay=3e-6"
+#: The one robust setting of the acceptance: the ``RobustSpec`` defaults (the CLI's ``--robust``).
+IDENT_ROBUST = RobustSpec()
 
 
 @pytest.fixture(scope="module")
@@ -232,6 +262,6 @@ def test_acceptance_robust_to_seek_mode_shift(setup, identified, shift):
     shifted = truth.copy(modes=[type(m)(m.freq_hz * (1 + shift) if m.freq_hz in seek else m.freq_hz, m.zeta, m.gain)
                                 for m in truth.modes])
     for plant in (identified, design):          # identified plant and the perturbed stand-in
-        res = SeekDesigner(plant, ctrl, IMAX, robust=WIDE_ROBUST).design(200.0)
+        res = SeekDesigner(plant, ctrl, IMAX, robust=IDENT_ROBUST).design(200.0)
         m = evaluate_profile(shifted, ctrl, res.profile)
         assert m.settled and m.settle_time_s <= 0.7 * _best_baseline(plant, shifted, ctrl, 200.0)
