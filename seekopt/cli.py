@@ -141,7 +141,7 @@ def cmd_design(args) -> int:
     if not math.isfinite(args.tracks) or args.tracks == 0:
         raise UsageError(f"--tracks must be a non-zero number (got {args.tracks})")
     try:
-        robust = None if args.robust is None else RobustSpec.from_string(args.robust)
+        robust = None if str(args.robust).lower() == "none" else RobustSpec.from_string(args.robust)
     except ValueError as exc:
         raise UsageError(f"--robust: {exc}") from None
     try:
@@ -202,7 +202,7 @@ def cmd_loop(args) -> int:
 def cmd_sweep(args) -> int:
     from .sweep import SweepConfig, parse_tpi, parse_tracks, run_sweep
     cfg = SweepConfig(_load_plant(args.plant), _load_controller(args.controller), parse_tpi(args.tpi),
-                      parse_tracks(args.tracks), args.imax, args.settle)
+                      parse_tracks(args.tracks), args.imax, args.settle, designer=args.designer)
     engine = args.dask or "process"
     s = run_sweep(cfg, args.output, engine=engine, workers=args.workers)
     print(f"sweep: {s.total} cells ({s.skipped} saved before, {s.computed} computed in {s.wall_s:.1f} s "
@@ -269,8 +269,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--tracks", type=float, required=True)
     s.add_argument("--imax", type=float, required=True)
     s.add_argument("--settle", type=float, default=0.1, help="settle band [track]")
-    s.add_argument("--robust", nargs="?", const="default", default=None,
-                   help="robust design: e.g. freq=5,zeta=30,gain=30,delay=2e-6 (percent / s)")
+    s.add_argument("--robust", nargs="?", const="default", default="default",
+                   help="robust design set (default: RobustSpec() -- seek-induced modes +-5 %%, others +-1 %%, "
+                        "zeta +-30 %%, gain +-8 %%, delay +-1 us); e.g. freq=5,ofreq=1,zeta=30,gain=8,delay=1e-6,n=15 "
+                        "(percent / s); 'none' for a nominal design")
     s.add_argument("-o", "--output", required=True, help="profile CSV")
     s.set_defaults(func=cmd_design)
 
@@ -298,6 +300,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--tracks", required=True, help="comma-separated seek lengths")
     s.add_argument("--imax", type=float, required=True)
     s.add_argument("--settle", type=float, default=0.1)
+    s.add_argument("--designer", default="ocp-robust",
+                   help="ocp-robust (default: the robust design of 'seekopt design'), ocp (nominal), or module:attr")
     s.add_argument("--dask", help="'local' or tcp://HOST:PORT")
     s.add_argument("--workers", type=int, default=None)
     s.add_argument("-o", "--output", required=True, help="results folder")

@@ -54,7 +54,7 @@ class DemoConfig:
     sweep_lengths: tuple = (10, 100, 1000, 10000)
     workers: int = 2
     html: bool = True
-    designer: str = "ocp"
+    designer: str = "ocp-robust"
     max_seeks: int | None = None
 
     def __post_init__(self):
@@ -353,6 +353,7 @@ def _plot_traces(plant, truth, controller, cells, tpi, tracks, imax, settle, fol
     """Fig. 9/10-style traces (:func:`seekopt.bench.plot_bench`) of the three profiles of one seek,
     played on the truth plant when known, else on the identified plant."""
     from .bench import BenchResult, BenchRow, plot_bench
+    from .metrics import SeekMetrics
     from .profiles import Profile
     from .sweep import baseline_profile, cell_key, evaluate
     evalp = truth or plant
@@ -364,9 +365,7 @@ def _plot_traces(plant, truth, controller, cells, tpi, tracks, imax, settle, fol
     rows = []
     for kind, p in profs:
         m = evaluate(evalp, controller, p, settle, None, plant.k0)
-        rows.append(BenchRow(kind, kind, m["seek_time_s"], m["settle_time_s"], m["peak_pes_after_track"],
-                             m["rms_pes_after_track"], m["peak_current_a"], m["ratio_tbb"],
-                             settled=m["settled"], profile=p))
+        rows.append(BenchRow(kind, kind, SeekMetrics(**m), profile=p))
     from .profiles import t_bang_bang
     res = BenchResult(float(tracks), imax, settle, t_bang_bang(tracks, plant.k0, imax), rows)
     return plot_bench(res, evalp, controller, Path(folder))

@@ -60,6 +60,7 @@ import numpy as np
 from identification.fileio import atomic_write_text as write_atomic
 from identification.plant import TRACK_PITCH_PER_TPI_NM, ModalPlant
 
+from .bench import baseline_profile as _bench_baseline, tuned_baseline
 from .controller import Controller
 from .engines import EngineError, iter_dask, iter_pool, iter_serial, make_pool
 from .profiles import t_bang_bang
@@ -67,7 +68,7 @@ from .profiles import t_bang_bang
 __all__ = ["SweepError", "SweepConfig", "SweepSummary", "parse_tpi", "parse_tracks", "cell_key",
            "compute_cell", "run_sweep", "evaluate", "make_pool", "assemble", "load_cells",
            "BaselineDesigner", "baseline_profile", "controller_at_tpi", "write_atomic",
-           "tuned_baseline", "code_hash", "KINDS", "ALL_KINDS", "TUNE_FACTORS", "TIMING_COLUMNS", "COLUMNS"]
+           "code_hash", "KINDS", "ALL_KINDS", "TUNE_FACTORS", "TIMING_COLUMNS", "COLUMNS"]
 
 #: Default profile kinds of a sweep, in table order.
 KINDS = ("optimal", "sine", "windowed_sine")
@@ -176,7 +177,8 @@ class SweepConfig:
     settle : float
         Settle band [track] (the same in tracks at every TPI).
     designer : str
-        ``"ocp"`` (:class:`seekopt.ocp.SeekDesigner`), ``"baseline"``
+        ``"ocp"`` (:class:`seekopt.ocp.SeekDesigner`, nominal), ``"ocp-robust"`` (the same with the
+        default :class:`seekopt.ocp.RobustSpec`: what ``seekopt design`` does), ``"baseline"``
         (:class:`BaselineDesigner`, for testing the machinery) or ``"module:attr"``,
         a factory ``f(plant, controller, imax, settle) -> obj`` with ``obj.design(tracks)``.
     kinds : tuple of str
@@ -279,43 +281,23 @@ class BaselineDesigner:
 
 
 def _designer_factory(spec: str):
-    if spec == "ocp":
-        from .ocp import SeekDesigner
-        return lambda plant, controller, imax, settle: SeekDesigner(plant, controller, imax, settle=settle)
+    if spec in ("ocp", "ocp-robust"):
+        from .ocp import RobustSpec, SeekDesigner
+        robust = RobustSpec() if spec == "ocp-robust" else None
+        return lambda plant, controller, imax, settle: SeekDesigner(plant, controller, imax, settle=settle,
+                                                                    robust=robust)
     if spec == "baseline":
         return BaselineDesigner
     mod, _, attr = spec.partition(":")
     if not attr:
-        raise SweepError(f"designer {spec!r}: expected 'ocp', 'baseline' or 'module:attr'")
+        raise SweepError(f"designer {spec!r}: expected 'ocp', 'ocp-robust', 'baseline' or 'module:attr'")
     return getattr(importlib.import_module(mod), attr)
 
 
 def baseline_profile(plant: ModalPlant, fs: float, kind: str, tracks: float, imax: float, settle: float = 0.1):
     """The bench's baseline (:func:`seekopt.bench.baseline_profile`: shortest ``kind`` within ``imax``,
     rigid-model 2DOF reference as in the paper), so sweep and bench compare the same profiles."""
-    from .bench import baseline_profile as _baseline
-    return _baseline(plant, fs, kind, tracks, imax, settle)
-
-
-def tuned_baseline(plant, controller, kind: str, tracks: float, imax: float, settle: float,
-                   horizon_s=None, factors=TUNE_FACTORS):
-    """The ``kind`` baseline (same shape and rigid-model reference as :func:`baseline_profile`) at
-    the duration ``round(f * n0)``, ``f`` in ``factors``, ``n0`` the shortest within ``imax``, with
-    the least seek-settle time on ``plant`` (ties: the shorter).  Returns ``(profile, metrics, n_tried)``."""
-    from .profiles import finish_profile, shortest_baseline, sine_profile, windowed_sine_profile
-    shape = {"sine": sine_profile, "windowed_sine": windowed_sine_profile}[kind]
-    fs = controller.sample_rate_hz
-    n0 = len(shortest_baseline(kind, tracks, plant.k0, fs, imax))
-    rigid = ModalPlant(k0=plant.k0, delay_s=plant.total_delay_s)
-    best = None
-    ns = sorted({max(2, int(round(f * n0))) for f in factors})
-    for n in ns:
-        prof = finish_profile(shape(tracks, n / fs, plant.k0, fs), tracks, fs, imax, rigid, kind,
-                              settle_track=settle, meta={"plant_hash": plant.hash()})
-        m = evaluate(plant, controller, prof, settle, horizon_s, plant.k0)
-        if best is None or m["settle_time_s"] < best[1]["settle_time_s"]:
-            best = (prof, m)
-    return best[0], best[1], len(ns)
+    return _bench_baseline(plant, fs, kind, tracks, imax, settle)
 
 
 # ------------------------------------------------------------------ one cell (runs in workers)
@@ -396,11 +378,12 @@ def compute_cell(payload: dict) -> dict:
                     opt = prof
                 elif kind.endswith("_tuned"):
                     t0 = time.perf_counter()
-                    prof, m, n_tried = tuned_baseline(plant, ctrl, kind[:-6], tracks, imax, settle,
-                                                      cfgd.get("horizon_s"))
+                    prof, sm = tuned_baseline(plant, ctrl, kind[:-6], tracks, imax, settle,
+                                              factors=TUNE_FACTORS, horizon_s=cfgd.get("horizon_s"))
+                    m = sm.to_dict()
                     tuned[kind] = prof
                     row.update(design_status="baseline", solver="duration_scan",
-                               objective=f"best of {n_tried} durations", eval_time_s=time.perf_counter() - t0)
+                               objective=f"best of {len(TUNE_FACTORS)} durations", eval_time_s=time.perf_counter() - t0)
                 else:
                     prof = baseline_profile(plant, fs, kind, tracks, imax, settle)
                     row.update(design_status="baseline", solver="shortest_baseline")
@@ -518,6 +501,12 @@ def run_sweep(cfg: SweepConfig, outdir, *, engine: str = "process", workers: int
     """
     from tqdm.auto import tqdm
     outdir = Path(outdir)
+    try:
+        _designer_factory(cfg.designer)        # a bad designer is an input error, before anything is written
+    except SweepError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - module:attr that cannot be imported
+        raise SweepError(f"designer {cfg.designer!r}: {_one_line(exc)}") from None
     saved = _prepare(cfg, outdir)
     todo = [(t, k) for t, k in cfg.cells() if cell_key(t, k) not in saved]
     total = len(cfg.cells())
