@@ -12,7 +12,7 @@ Run::
 2. Optimal profiles on the same plant: minimum residual for the paper's seek times, minimum
    seek-settle time.
 3. Acceptance: designed from (a) the plant identified from a synthetic log
-   (``identification.identify``; cached in the temp folder, or ``--identified``) and (b) the
+   (``identification.identify``, or ``--identified``) and (b) the
    stand-in perturbed copy of the truth (modes +-2 %, gains +-20 %, delay +3 us, no modes above
    0.45 fs), each evaluated on the truth for K in {1, 10, 50, 200, 1000} at Imax = 0.3 A, and
    on the truth with the seek-induced modes (and all modes) shifted +-5 %.  Baselines twice: the
@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -65,16 +64,15 @@ def write_section(name: str, text: str) -> None:
 
 
 def identified_plant(path: str | None) -> ModalPlant:
-    cache = Path(path) if path else Path(tempfile.gettempdir()) / "seekopt_identified_seed0.json"
-    if cache.exists():
-        return ModalPlant.load(cache)
+    """The plant in ``path``, or identified now from a synthetic log (seed 0, 120 seeks; about 20 s)."""
+    if path:
+        return ModalPlant.load(path)
     from identification.identify import identify
     from seekopt.synth import SynthConfig, synthesize
     t0 = time.time()
     log, _ = synthesize(SynthConfig(n_seeks=120, seed=0))
     plant = identify(log).plant
-    plant.to_json(cache)
-    print(f"identified plant from a synthetic log in {time.time() - t0:.0f} s -> {cache}")
+    print(f"identified plant from a synthetic log in {time.time() - t0:.0f} s")
     return plant
 
 
@@ -125,7 +123,7 @@ def row(label, m, base=None):
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--identified", help="identified plant JSON (default: identify a synthetic log, cached)")
+    ap.add_argument("--identified", help="identified plant JSON (default: identify a synthetic log now)")
     ap.add_argument("--quick", action="store_true", help="K = 200 only")
     a = ap.parse_args(argv)
     FIG.mkdir(parents=True, exist_ok=True)
