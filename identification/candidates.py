@@ -1,28 +1,24 @@
 """Candidate effects for closing the loop: each one a model extension that is re-fitted.
 
-Fits use the fast, exact linear engine (:class:`identification.residual.LinearModel`,
-the blocks of the one ``DiscretePlant``): the prediction is the linear response to
-the command (after ``input`` effects) and to the undelayed force (bias and
-``force`` effects), plus ``output`` effects, with the per-window anchors projected
-out.  State-dependent effects are evaluated on the *measured* position (known to
-a fraction of a track) and a velocity estimated from it, which makes most
-candidates linear in their parameters: their regressors are the model's response
-to a feature.  The others (delay, amplifier bandwidth, saturation limit,
-extra-mode frequency and damping, spindle frequency) are found by 1-D/2-D search
-with the linear parameters projected out (variable projection).  Friction is
-fitted with a fast sticking model (a head at rest holds while the applied force
-is below the Coulomb level) and then refined by ``DiscretePlant`` simulation:
-when the head sticks only the model's own state reproduces the friction force,
-and the rigid body turns a 1e-6 A bias error into a visible position error.
+Each ``fit_<effect>(plant, data)`` extends ``plant`` by one library effect and
+re-fits it on ``data`` with the fast engine of :mod:`identification.fit_engine`,
+jointly with the base (``k0``, ``bias_a``, the declared modes' gains and the
+linear parameters of the effects already accepted).  Linear-in-parameter effects
+(pivot spring, position bias, Coulomb/viscous friction, Kt(p), periodic
+disturbance, extra-mode gain) are least squares on the model's response to a
+feature; the others (delay, amplifier bandwidth, saturation limit, extra-mode
+frequency and damping, spindle frequency) are found by 1-D/2-D search with the
+linear parameters projected out (variable projection).  Friction is fitted with a
+fast sticking model (a head at rest holds while the applied force is below the
+Coulomb level) and then refined by ``DiscretePlant`` simulation: when the head
+sticks only the model's own state reproduces the friction force, and the rigid
+body turns a 1e-6 A bias error into a visible position error.
 
-Every candidate is re-fitted jointly with the base: ``k0``, ``bias_a``, the gains
-of the declared modes (an identification may have let them absorb the effect)
-and the linear parameters of the effects already accepted
-(:meth:`Engine.base_cols`).  The criterion is the output error (what is
-reported), not a prewhitened one: an AR noise model estimated from a residual
-that still contains the effect whitens the effect away.  Information criteria
-use an AR model of each final residual (:func:`bic`) and significance tests a
-covariance robust to any correlation within a seek (:func:`cluster_cov`).
+The criterion is the output error (what is reported), not a prewhitened one: an
+AR noise model estimated from a residual that still contains the effect whitens
+the effect away.  A candidate returns None when its own parameters are not
+significant on the fit data (cluster-robust Wald chi^2 below ``MIN_WALD``) or
+its search ends at a bound that means "no such effect".
 
 Where the data cannot tell candidates apart the parameterisation decides: an
 amplifier lag faster than fs/2 is reported as a fractional input delay, an extra
@@ -34,263 +30,22 @@ Units: tracks, A, s, Hz.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import lsq_linear, minimize, minimize_scalar
+from scipy.optimize import minimize, minimize_scalar
 
 from .effects import (AmplifierLag, CurrentSaturation, ExtraMode, Friction, InputDelay,
                       PeriodicDisturbance, PivotSpringDamper, PositionBias, TorqueConstantVariation)
-from .logs import SeekLog
-from .plant import ModalPlant, Mode
-from .residual import (LinearModel, Windows, detect_spindle, eval_forces, eval_inputs, eval_outputs, simulate,
-                       velocity_estimate)
+from .fit_engine import (Data, Engine, Fit, _hats, _mode_column, bic, cluster_cov, effective_n, lstsq,
+                         rebase, refit_base, segments, wald)
+from .plant import ModalPlant
+from .residual import detect_spindle, simulate
 
-__all__ = ["Data", "Engine", "Fit", "CANDIDATES", "fit_candidate", "refit_base", "bic",
-           "cluster_cov", "lstsq", "segments"]
+__all__ = ["Data", "Engine", "Fit", "CANDIDATES", "fit_candidate", "refit_base", "bic", "effective_n",
+           "cluster_cov", "lstsq", "segments", "MIN_WALD", "ZETA_MAX"]
 
 MIN_WALD = 16.0   #: chi^2 a candidate's own parameters must reach on the fit data (~4 sigma)
 ZETA_MAX = 0.5    #: largest damping ratio an extra mode may have (beyond: not a resonance)
-
-
-# ------------------------------------------------------------------------------ data
-@dataclass
-class Data:
-    """A log and the windows of it used for fitting or validation."""
-
-    log: SeekLog
-    windows: Windows
-    v: np.ndarray = None         # velocity estimate [track/s]
-    v_scale: float = 0.0         # its noise level near rest [track/s]
-    frozen: tuple | None = None  # (effect dicts, cmd [A], state-dependent force [A]) simulated
-    _q: dict = field(default_factory=dict, repr=False)
-
-    def __post_init__(self):
-        if self.v is None:
-            self.v = velocity_estimate(self.log)
-            rest = np.abs(self.log.pes) < 0.5
-            vs = self.v[rest] if rest.sum() > 50 else self.v
-            self.v_scale = float(1.4826 * np.median(np.abs(vs - np.median(vs)))) or 1.0
-
-    @property
-    def n(self) -> int:
-        return self.windows.n_samples
-
-    def subset(self, max_samples: int) -> "Data":
-        """Every k-th window so that at most ~``max_samples`` samples remain."""
-        k = max(1, math.ceil(self.n / max_samples))
-        return Data(self.log, self.windows.every(k), self.v, self.v_scale, self.frozen)
-
-    def freeze(self, plant: ModalPlant, res) -> "Data":
-        """The same data, with the command and state-dependent force that the reference
-        simulation ``res`` (``simulate(..., record=True)`` of ``plant``) applied: the fast
-        engine then reproduces that simulation for ``plant``'s own effects (e.g. friction
-        sticking in dwell) and adds new effects on top."""
-        if not any(e.kind in ("input", "force") for e in plant.effects):
-            return Data(self.log, self.windows, self.v, self.v_scale, None)
-        f_state = res.force - eval_forces(plant.copy(effects=[e for e in plant.effects
-                                                               if e.kind not in ("input", "force")]),
-                                          self.log.position_track, self.v)
-        frozen = ([e.to_dict() for e in plant.effects if e.kind in ("input", "force")], res.cmd, f_state)
-        return Data(self.log, self.windows, self.v, self.v_scale, frozen)
-
-    def q(self, basis_fn, key) -> list:
-        """Orthonormal anchor bases per window, cached per rigid block."""
-        if key not in self._q:
-            self._q[key] = [np.linalg.qr(basis_fn(b - a))[0] for a, b in self.windows.bounds]
-        return self._q[key]
-
-
-def segments(data: Data, e: np.ndarray) -> list:
-    """Split concatenated window samples into per-window arrays."""
-    cuts = np.cumsum([b - a for a, b in data.windows.bounds])[:-1]
-    return np.split(e, cuts)
-
-
-def _rigid_key(plant: ModalPlant) -> tuple:
-    return tuple((e.freq_hz, e.zeta) for e in plant.effects if isinstance(e, PivotSpringDamper))
-
-
-# ---------------------------------------------------------------------------- engine
-class Engine:
-    """Fast prediction, anchor projection and regressors for one plant on one :class:`Data`."""
-
-    refit_modes = True   #: re-fit the declared modes' gains with the base (they may have absorbed an effect)
-
-    def __init__(self, plant: ModalPlant, data: Data):
-        self.plant, self.d = plant, data
-        self.lm = LinearModel(plant, data.log.dt)
-        log = data.log
-        y, u = log.position_track, log.current_a
-        self.cmd = eval_inputs(plant.effects, u, y)
-        self.force = eval_forces(plant, y, data.v, data.v_scale)
-        if data.frozen is not None:     # simulated sequences for the effects they cover
-            done, cmd0, f0 = data.frozen
-            ok = np.isfinite(cmd0) & np.isfinite(f0)
-            new = [e for e in plant.effects if e.kind in ("input", "force") and e.to_dict() not in done]
-            if all(d in [e.to_dict() for e in plant.effects] for d in done):
-                cmd = eval_inputs(new, cmd0, y)
-                rest = plant.copy(effects=[e for e in plant.effects if e.kind not in ("input", "force")] + new)
-                force = f0 + eval_forces(rest, y, data.v, data.v_scale)
-                self.cmd = np.where(ok, cmd, self.cmd)
-                self.force = np.where(ok, force, self.force)
-        self.key = _rigid_key(plant)
-        self.y_lin = self.lm.response(self.cmd, self.force, data.windows)
-        self.y_out = eval_outputs(plant.effects, log.time_s)
-
-    def resp(self, cmd=None, force=None, rigid_only: bool = False) -> np.ndarray:
-        """Linear response [track] of the plant to an extra command and/or force [A]."""
-        c = np.zeros(self.d.log.n) if cmd is None else cmd
-        r, f = self.lm.response(c, force, self.d.windows, split=True)
-        return r if rigid_only else r + f
-
-    def project(self, *cols) -> np.ndarray:
-        """Full-length columns -> window samples with the anchors projected out, ``(N, k)``."""
-        X = np.column_stack(cols)
-        out = []
-        for (a, b), Q in zip(self.d.windows.bounds, self.d.q(self.lm.free_basis, self.key)):
-            S = X[a:b]
-            out.append(S - Q @ (Q.T @ S))
-        return np.vstack(out)
-
-    def target(self) -> np.ndarray:
-        """Measured minus predicted position, full length [track]."""
-        return self.d.log.position_track - self.y_lin - self.y_out
-
-    def base_cols(self) -> list:
-        """Regressors of the base re-fit: relative k0 change [-], bias change [A], then the
-        declared modes' gains (``refit_modes``) and the linear parameters of the plant's
-        effects (Kt coefficients, position-bias table, periodic cos/sin, extra-mode gains;
-        ``self.setters`` says which), re-fitted jointly with every candidate."""
-        if getattr(self, "_base", None) is None:
-            cols, self.setters = [self.y_lin, self.resp(force=np.ones(self.d.log.n))], []
-            y, t = self.d.log.position_track, self.d.log.time_s
-            for i, m in enumerate(self.plant.modes if self.refit_modes else []):
-                cols.append(_mode_column(self.plant, self, m.freq_hz, m.zeta))
-                self.setters.append((("mode", i), "gain", None, True))
-            for e in self.plant.effects:
-                d = e.to_dict()
-                if isinstance(e, TorqueConstantVariation):
-                    pre = self.cmd / e.factor(y)
-                    x = (y - e.center_track) / e.scale_track
-                    for j in range(len(e.coeffs)):
-                        cols.append(self.resp(cmd=pre * x ** (j + 1))); self.setters.append((d, "coeffs", j, True))
-                elif isinstance(e, PositionBias):
-                    for j, h in enumerate(_hats(y, e.knots_track)):
-                        cols.append(self.resp(force=h)); self.setters.append((d, "bias_a", j, True))
-                elif isinstance(e, PeriodicDisturbance):
-                    for j, h in enumerate(e.harmonics):
-                        ph = 2 * np.pi * h * e.spindle_hz * t
-                        cols += [np.cos(ph), np.sin(ph)]
-                        self.setters += [(d, "cos_track", j, False), (d, "sin_track", j, False)]
-                elif isinstance(e, ExtraMode):
-                    cols.append(_mode_column(self.plant, self, e.freq_hz, e.zeta))
-                    self.setters.append((d, "gain", None, True))
-            self._base = cols
-        return self._base
-
-    def residual(self) -> np.ndarray:
-        """Output-error residual on the window samples [track]."""
-        return self.project(self.target())[:, 0]
-
-
-def rebase(plant: ModalPlant, th, setters=(), **changes) -> ModalPlant:
-    """Apply a base re-fit ``th`` (:meth:`Engine.base_cols` order): ``k0 *= 1 + th[0]``,
-    ``bias_a += th[1] / (1 + th[0])``, each effect parameter in ``setters`` += its theta
-    (divided by ``1 + th[0]`` where the regressor scales with k0)."""
-    import json
-    from .effects import effect_from_dict
-    k = float(th[0])
-    p = plant.copy(k0=plant.k0 * (1.0 + k), **changes)
-    if len(th) > 1:
-        p.bias_a = plant.bias_a + float(th[1]) / (1.0 + k)
-    if len(th) > 2 and setters:
-        eff = [e.to_dict() for e in p.effects]
-        keys = [json.dumps(e, sort_keys=True) for e in eff]
-        for (d, key, j, scaled), t in zip(setters, th[2:]):
-            if isinstance(d, tuple) and d[0] == "mode":
-                p.modes[d[1]].gain = plant.modes[d[1]].gain + float(t) / (1.0 + k)
-                continue
-            kd = json.dumps(d, sort_keys=True)
-            if kd not in keys:
-                continue
-            prm = eff[keys.index(kd)]["params"]
-            val = float(t) / (1.0 + k) if scaled else float(t)
-            if j is None:
-                prm[key] = prm[key] + val
-            else:
-                prm[key] = list(prm[key]); prm[key][j] = prm[key][j] + val
-        p.effects = [effect_from_dict(e) for e in eff]
-    return p
-
-
-def lstsq(r: np.ndarray, Z: np.ndarray, bounds=None):
-    """Least squares ``r ~ Z theta`` (optionally bounded): ``(theta, sse)``."""
-    if Z.shape[1] == 0:
-        return np.zeros(0), float(r @ r)
-    s = np.linalg.norm(Z, axis=0); s[s == 0] = 1.0
-    if bounds is None:
-        th = np.linalg.lstsq(Z / s, r, rcond=1e-9)[0]
-    else:
-        th = lsq_linear(Z / s, r, bounds=(np.asarray(bounds[0]) * s, np.asarray(bounds[1]) * s)).x
-    th = th / s
-    e = r - Z @ th
-    return th, float(e @ e)
-
-
-def cluster_cov(Z: np.ndarray, e: np.ndarray, data: Data) -> np.ndarray:
-    """Covariance of LS coefficients robust to any correlation within a seek (clusters)."""
-    Zi = np.linalg.pinv(Z.T @ Z)
-    scores = {}
-    i = 0
-    for (a, b), g in zip(data.windows.bounds, data.windows.groups):
-        scores[g] = scores.get(g, 0.0) + Z[i:i + b - a].T @ e[i:i + b - a]
-        i += b - a
-    meat = sum(np.outer(v, v) for v in scores.values())
-    m = len(scores)
-    return Zi @ meat @ Zi * m / max(m - 1, 1)
-
-
-def wald(th: np.ndarray, cov: np.ndarray) -> float:
-    """``th' cov^-1 th`` (chi^2 with len(th) degrees of freedom)."""
-    return float(th @ np.linalg.lstsq(cov, th, rcond=None)[0])
-
-
-def bic(e: np.ndarray, data: Data, k: int, order: int = 12) -> float:
-    """Bayesian information criterion of an output-error model with AR(``order``) noise:
-    ``N log(sigma_innov^2) + (k + order) log N`` for residual ``e`` on ``data``'s windows."""
-    rows, rhs = [], []
-    for s in segments(data, e):
-        if len(s) > order + 2:
-            rows.append(np.column_stack([s[order - i - 1:len(s) - i - 1] for i in range(order)]))
-            rhs.append(s[order:])
-    X, r = np.vstack(rows), np.concatenate(rhs)
-    w = r - X @ np.linalg.lstsq(X, r, rcond=None)[0]
-    n = len(r)
-    return float(n * math.log(max(w @ w / n, 1e-300)) + (k + order) * math.log(n))
-
-
-def refit_base(plant: ModalPlant, data: Data, iters: int = 2) -> ModalPlant:
-    """Output-error least-squares re-fit of ``k0``, ``bias_a`` and the effects' linear
-    parameters (Gauss-Newton, ``iters`` steps)."""
-    for _ in range(iters):
-        eng = Engine(plant, data)
-        P = eng.project(eng.target(), *eng.base_cols())
-        th, _ = lstsq(P[:, 0], P[:, 1:])
-        plant = rebase(plant, th, eng.setters)
-    return plant
-
-
-# ------------------------------------------------------------------------------ fits
-@dataclass
-class Fit:
-    """A re-fitted candidate: the extended plant and what the fit found."""
-
-    effect: str
-    plant: ModalPlant
-    n_params: int
-    params: dict
-    note: str = ""
 
 
 def _vp_cost(data):
@@ -374,6 +129,7 @@ def _linear_fit(plant, data, cols, rigid=False, bounds=None, channel="force", wi
         return rebase(new_plant, full, setters)
     apply.k = float(full[0])
     apply.bias = float(full[1])
+    apply.t2 = th[nb:] ** 2 / np.maximum(np.diag(cluster_cov(P[:, 1:], e, data))[nb:], 1e-300)
     return apply, th[nb:], sse, wald(t, cov)
 
 
@@ -454,7 +210,7 @@ def polish(plant: ModalPlant, data: Data, iters: int = 2, bias: bool = True) -> 
 def fit_pivot_spring_damper(plant, data):
     y = data.log.position_track
     ap, (ks, kd), _, w = _linear_fit(plant, data, [-y, -data.v], rigid=True, bounds=([0, 0], [np.inf, np.inf]))
-    if ks <= 0 or w < MIN_WALD:
+    if ks <= 0 or ap.t2[0] < MIN_WALD:      # a spring needs a significant stiffness
         return None
     wp = math.sqrt(ks * plant.k0)          # stiffness force ks*y [A] -> wp^2 = ks k0
     zeta = kd * plant.k0 / (2 * wp)
@@ -470,14 +226,10 @@ def _pos_range(data):
     return float(np.min(p)), float(np.max(p))
 
 
-def _hats(x, knots):
-    """Piecewise-linear interpolation basis (hat functions) at ``knots``."""
-    return [np.interp(x, knots, np.eye(len(knots))[j]) for j in range(len(knots))]
-
-
 def _pick_by_bic(plant, data, fits):
     """``fits``: list of (n_params, plant) -> the plant with the lowest :func:`bic`."""
-    scored = [(bic(Engine(p, data).residual(), data, k), k, p) for k, p in fits]
+    n_eff = effective_n(Engine(plant, data).residual(), data)
+    scored = [(bic(Engine(p, data).residual(), data, k, n_eff), k, p) for k, p in fits]
     return min(scored, key=lambda t: t[0])[1:]
 
 
@@ -513,13 +265,6 @@ def fit_torque_constant_variation(plant, data):
         fits.append((deg, refit_base(base.copy(effects=base.effects + [eff]), data)))
     n, p = _pick_by_bic(plant, data, fits)
     return Fit("torque_constant_variation", p, n, p.effects[-1].params)
-
-
-def _mode_column(plant, eng, f, z):
-    """Response [track] of a unit-gain mode at ``f`` Hz, damping ``z``, to the model's inputs."""
-    keep = [e for e in plant.effects if isinstance(e, (InputDelay, AmplifierLag))]
-    mini = ModalPlant(k0=plant.k0, modes=[Mode(f, z, 1.0)], delay_s=plant.delay_s, effects=keep)
-    return LinearModel(mini, eng.d.log.dt).response(eng.cmd, eng.force, eng.d.windows, with_rigid=False)
 
 
 def _near_existing(plant, f):

@@ -8,13 +8,15 @@
    ``DiscretePlant`` per seek from rest at its start, initial position and velocity
    fitted by least squares) and analyses the residual (evidence);
 3. fits every candidate of :data:`identification.candidates.CANDIDATES` on the fit
-   data (each re-fitted with ``k0`` and ``bias_a``), simulates it, and accepts the
-   best one if (a) its BIC on the fit data (output error with an AR noise model)
-   is lower than the current model's by more than ``min_bic``, (b) its RMS error
-   on the validation data is at most ``(1 - min_drop)`` times the current one and
-   (c) it lowers the error of at least ``min_seeks`` of the validation seeks;
-   accepted effects are re-fitted jointly with every later candidate (their linear
-   parameters) or re-fitted one by one (backfitting);
+   data (jointly with ``k0``, ``bias_a``, the declared modes' gains and the linear
+   parameters of the effects already accepted), simulates it, and accepts the one with
+   the lowest validation RMS if (a) its BIC on the fit data (output error on an
+   effective sample size) is lower than the current model's by more than ``min_bic``,
+   (b) its validation RMS is at most ``(1 - min_drop)`` times the current one,
+   (c) it lowers the error of at least ``min_seeks`` of the validation seeks and
+   (d) no free-form correction along a variable outside the library does clearly
+   better (else it is a proxy); earlier accepted effects are then re-fitted
+   (backfitting);
 4. repeats greedily until no candidate passes, then lists in ``unexplained`` the
    structure that is still in the validation residual.
 
@@ -27,7 +29,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .candidates import CANDIDATES, Data, bic, fit_candidate, lstsq, refit_base
+from .candidates import CANDIDATES, fit_candidate
+from .fit_engine import Data, bic, effective_n, lstsq, refit_base
 from .logs import SeekLog
 from .loop_report import dependence, describe_residual, evidence_lines, unexplained_lines
 from .plant import ModalPlant
@@ -44,8 +47,9 @@ REPEATABLE = ("extra_mode",)
 OUT_OF_LIBRARY = ("gain_vs_time", "force_vs_time", "current_error_vs_current")
 
 SIMULATION_NOTE = ("each seek (target change to next target change) simulated with DiscretePlant "
-                   "from rest at its start (previous current held), the initial position and "
-                   "velocity fitted by least squares over the seek")
+                   "from rest at its start (previous current held); the rigid-body position and "
+                   "velocity are fitted by least squares at the start of every window of at most "
+                   "10 ms inside the seek (linear nuisance parameters)")
 
 
 @dataclass
@@ -195,15 +199,15 @@ def split_data(log: SeekLog, validation: SeekLog | None = None):
     w = seek_windows(log)
     if validation is not None:
         return Data(log, w), Data(validation, seek_windows(validation)), False
-    if len(w) < 4:
+    if len(set(w.groups)) < 4:
         raise ValueError(f"{log.source or 'log'}: needs at least 4 seeks to hold some out "
-                         f"(has {len(w)}); give a validation log")
+                         f"(has {len(set(w.groups))}); give a validation log")
     fw, vw = w.split(2)
     return Data(log, fw), Data(log, vw), True
 
 
 def close_loop(log: SeekLog, model: ModalPlant, validation: SeekLog | None = None,
-               candidates=None, min_drop: float = 0.05, min_bic: float = 10.0, min_seeks: float = 0.6,
+               candidates=None, min_drop: float = 0.05, min_bic: float = 6.0, min_seeks: float = 0.6,
                proxy_margin: float = 0.05, max_steps: int = 6, verbose: bool = False) -> LoopResult:
     """Augment ``model`` with effects that the data support (see the module notes).
 
@@ -237,12 +241,14 @@ def close_loop(log: SeekLog, model: ModalPlant, validation: SeekLog | None = Non
     say = print if verbose else (lambda *a, **k: None)
     res0 = evaluate(model, val, same, record=True)
     error_before = errors(res0)
-    refit = refit_base(model, fit)       # k0 and bias re-estimated (output error, fit data)
-    rv = evaluate(refit, val, same, record=True)
-    base_refit = rv.rms < res0.rms       # kept only if it lowers the validation error
-    current, cur_val = (refit, rv) if base_refit else (model, res0)
+    refit = refit_base(model, fit)       # k0, bias, mode gains re-estimated (output error, fit data)
+    rv_base = evaluate(refit, val, same, record=True)
+    base_refit = rv_base.rms < res0.rms  # kept only if it lowers the validation error
+    current, cur_val = (refit, rv_base) if base_refit else (model, res0)
+    notes = []
     cur_fit = evaluate(current, fit, record=True)
-    cur_bic = bic(cur_fit.e, fit, 0)
+    n_eff = effective_n(cur_fit.e, fit)
+    cur_bic = bic(cur_fit.e, fit, 0, n_eff)
     analysis_before = describe_residual(current, val.freeze(current, cur_val), cur_val)
     say(f"start: validation rms {cur_val.rms:.4g} track ({time.time() - t0:.1f} s)")
     steps, accepted = [], []
@@ -266,7 +272,7 @@ def close_loop(log: SeekLog, model: ModalPlant, validation: SeekLog | None = Non
             rf, drop = None, float("nan")
             if rv.rms <= (1 - min_drop) * cur_val.rms:      # information criterion on the fit data
                 rf = evaluate(F.plant, fit, record=True)
-                drop = cur_bic - bic(rf.e, fit, F.n_params)
+                drop = cur_bic - bic(rf.e, fit, F.n_params, n_eff)
             st = Step(name, F.params, ev.get(name, ""), cur_val.rms, rv.rms, False, it, drop,
                       rv.fit_percent, improved_fraction(rv, cur_val), F.plant)
             tried.append((st, rf, rv))
@@ -281,8 +287,11 @@ def close_loop(log: SeekLog, model: ModalPlant, validation: SeekLog | None = Non
             free = [d for d in dependence(current, fdata, val.freeze(current, cur_val), OUT_OF_LIBRARY)
                     if d.p < 1e-4 and d.val_drop > best_drop + proxy_margin]
             if free:
-                say("  best candidate explains less than a free-form " + ", ".join(d.name for d in free)
-                    + " correction: not accepted")
+                notes.append(f"iteration {it}: the best candidate ({min(ok, key=lambda t: t[0].rms_after)[0].effect}, "
+                             f"-{100 * best_drop:.0f} %) explains less than a free-form "
+                             + ", ".join(f"{d.name} correction (-{100 * d.val_drop:.0f} %)" for d in free)
+                             + ": taken as a proxy, not accepted")
+                say("  " + notes[-1])
                 break
         if not ok:
             break
@@ -297,16 +306,17 @@ def close_loop(log: SeekLog, model: ModalPlant, validation: SeekLog | None = Non
                 steps.append(st)
                 current, cur_fit, cur_val = st.plant, fitted[0], fitted[1]
                 say(f"  re-fitted {old}: validation rms {cur_val.rms:.4g}")
-        cur_bic = bic(cur_fit.e, fit, 0)
+        n_eff = effective_n(cur_fit.e, fit)
+        cur_bic = bic(cur_fit.e, fit, 0, n_eff)
     plant = current.copy()
     plant.meta = dict(plant.meta, loop={
         "simulation": SIMULATION_NOTE,
         "validation": "validation log" if not same else "held-out odd seeks of the log",
         "base_refit": {"kept": bool(base_refit), "k0": float(refit.k0), "bias_a": float(refit.bias_a),
-                       "rms_track": float(rv.rms)},
+                       "rms_track": float(rv_base.rms)},
         "accepted": accepted})
     fdata, vdata = fit.freeze(current, cur_fit), val.freeze(current, cur_val)
     analysis_after = describe_residual(current, vdata, cur_val)
     unexplained = unexplained_lines(current, fdata, vdata, cur_val, analysis_after)
     return LoopResult(plant, model, error_before, errors(cur_val), steps, unexplained, res0,
-                      cur_val, fit, val, analysis_before, analysis_after, time.time() - t0)
+                      cur_val, fit, val, analysis_before, analysis_after, time.time() - t0, notes)

@@ -29,10 +29,10 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import chi2 as _chi2
 
-from .candidates import Data, Engine, cluster_cov, lstsq, wald
+from .fit_engine import Data, Engine, cluster_cov, lstsq, wald
 from .plant import ModalPlant, atomic_write_text
-from .residual import (Residual, correlations, detect_spindle, nonlinear_tests, spectra,
-                       synchronous_average)
+from .residual import Residual
+from .residual_analysis import correlations, detect_spindle, nonlinear_tests, spectra, synchronous_average
 
 __all__ = ["write_report", "markdown", "figures", "Dependence", "dependence", "describe_residual",
            "evidence_lines", "unexplained_lines", "DEPENDENCE_TESTS"]
@@ -451,8 +451,7 @@ def markdown(R, figs=(), fig_dir: str = ".") -> str:
     L = ["# Closing the loop: residual analysis and model augmentation", "",
          f"* fit log: `{R.fit.log.source or 'arrays'}` ({len(set(R.fit.windows.groups))} seeks), "
          f"validation: {loop.get('validation', '?')} ({len(set(R.val.windows.groups))} seeks)",
-         f"* simulation: {loop.get('simulation', '')}; the position and velocity are re-estimated every "
-         f"window of at most 10 ms inside a seek (the rigid body integrates force errors twice)",
+         f"* simulation: {loop.get('simulation', '')} (the rigid body integrates force errors twice)",
          f"* base re-fit of k0 and bias on the fit data: {'kept' if loop.get('base_refit', {}).get('kept') else 'not kept'}"
          f" (validation RMS {loop.get('base_refit', {}).get('rms_track', float('nan')):.4g} track)",
          f"* runtime {R.runtime_s:.1f} s", "",
@@ -462,8 +461,9 @@ def markdown(R, figs=(), fig_dir: str = ".") -> str:
          f"Ratio after/before: {ea['rms_track'] / max(eb['rms_track'], 1e-300):.3f}. Fit % is "
          "100 (1 - |e| / |y - mean_w(y)|) with the mean per window (the seek motion dominates it).", "",
          "## Steps", "",
-         "Each candidate is fitted on the fit data (re-fitted with k0, bias and the linear parameters of the "
-         "effects already accepted), simulated, and accepted if its BIC on the fit data drops, its validation "
+         "Each candidate is fitted on the fit data (jointly with k0, bias, the declared modes' gains and the "
+         "linear parameters of the effects already accepted), simulated, and accepted if its BIC on the fit "
+         "data drops, its validation "
          "RMS drops by the required fraction, most validation seeks improve, and no free-form correction along "
          "a variable outside the library explains clearly more.", "",
          "| it | effect | accepted | val RMS before | val RMS after | seeks improved | params | evidence |",
@@ -471,6 +471,8 @@ def markdown(R, figs=(), fig_dir: str = ".") -> str:
     for s in R.steps:
         L.append(f"| {s.iteration} | {s.effect} | {'**yes**' if s.accepted else 'no'} | {s.rms_before:.4g} | "
                  f"{s.rms_after:.4g} | {100 * s.improved_fraction:.0f} % | {_fmt_params(s.params)} | {s.evidence} |")
+    if R.notes:
+        L += [""] + [f"Note: {n}" for n in R.notes]
     L += ["", "## Final plant effects", ""]
     L += [f"* `{e.name}`: {_fmt_params(e.params)}" for e in R.plant.effects] or ["* none"]
     L += [f"* k0 = {R.plant.k0:.6g} track/(A s^2) (model {R.model.k0:.6g}), bias = {1e3 * R.plant.bias_a:.4g} mA "

@@ -8,8 +8,9 @@ from scipy.signal import lfilter
 
 from identification.effects import AmplifierLag, ExtraMode, InputDelay, PivotSpringDamper
 from identification.logs import SeekLog
-from identification.residual import (LinearModel, Windows, correlations, detect_spindle, fit_percent,
-                                     nonlinear_tests, seek_windows, simulate, spectra, synchronous_average)
+from identification.residual import LinearModel, Windows, fit_percent, seek_windows, simulate
+from identification.residual_analysis import (correlations, detect_spindle, nonlinear_tests, spectra,
+                                              synchronous_average)
 from seekopt.presets import default_truth_plant
 from seekopt.synth import SynthConfig, synthesize
 
