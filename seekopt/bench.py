@@ -200,11 +200,11 @@ def format_table(res: BenchResult) -> str:
     """Text table of a bench (times in ms)."""
     head = (f"seek {res.tracks:g} tracks, Imax {res.imax:g} A, band {res.settle:g} track, "
             f"T_bb {res.t_bb_s * 1e3:.3f} ms")
-    cols = f"{'profile':<16}{'T_seek':>9}{'T_settle':>10}{'resid pk':>10}{'resid rms':>10}{'I peak':>8}" \
+    cols = f"{'profile':<20}{'T_seek':>9}{'T_settle':>10}{'resid pk':>10}{'resid rms':>10}{'I peak':>8}" \
            f"{'/T_bb':>7}{'/shortest':>10}{'/tuned':>8}"
     lines = [head, cols, "-" * len(cols)]
     for r in res.rows:
-        lines.append(f"{r.label:<16}{r.seek_time_s * 1e3:>9.3f}{r.settle_time_s * 1e3:>10.3f}"
+        lines.append(f"{r.label:<20}{r.seek_time_s * 1e3:>9.3f}{r.settle_time_s * 1e3:>10.3f}"
                      f"{r.peak_pes_after_track:>10.3f}{r.rms_pes_after_track:>10.4f}{r.peak_current_a:>8.3f}"
                      f"{r.ratio_tbb:>7.2f}{r.ratio_best_baseline:>10.2f}{r.ratio_tuned_baseline:>8.2f}"
                      + (f"  {r.note}" if r.note else ""))
