@@ -24,6 +24,7 @@ Every reported error is on validation data, from the reference simulation.
 """
 from __future__ import annotations
 
+import re
 import time
 from dataclasses import dataclass, field
 
@@ -34,10 +35,10 @@ from .fit_engine import Data, bic, effective_n, lstsq, refit_base
 from .logs import SeekLog
 from .loop_report import dependence, describe_residual, evidence_lines, unexplained_lines
 from .plant import ModalPlant
-from .residual import Residual, seek_windows, simulate
+from .residual import Residual, seek_windows, simulate, velocity_estimate
 
 __all__ = ["Step", "LoopResult", "close_loop", "evaluate", "errors", "improved_fraction", "split_data",
-           "REPEATABLE", "OUT_OF_LIBRARY", "SIMULATION_NOTE"]
+           "compensate", "reidentified", "REPEATABLE", "OUT_OF_LIBRARY", "SIMULATION_NOTE"]
 
 #: candidates that may be accepted more than once
 REPEATABLE = ("extra_mode",)
@@ -95,8 +96,11 @@ class LoopResult:
 
     @property
     def accepted(self) -> list:
-        """Accepted effects in order of first acceptance."""
-        return list(dict.fromkeys(s.effect for s in self.steps if s.accepted))
+        """Accepted effects in order of first acceptance (those still in the final plant: a linear
+        effect with its own states, e.g. an extra mode, is re-estimated by a kept re-identification
+        as part of the linear plant)."""
+        have = {e.name for e in self.plant.effects}
+        return list(dict.fromkeys(s.effect for s in self.steps if s.accepted and s.effect in have))
 
     def report(self) -> dict:
         """The JSON report: ``plant`` (ModalPlant JSON, accepted effects included),
@@ -194,6 +198,117 @@ def _backfit(name: str, plant: ModalPlant, fit: Data, val: Data, same: bool, cur
 
 
 
+# ----------------------------------------------------------------- re-identification
+_SUBSTEP = re.compile(r"current_sub\d+_a")
+
+
+def _n_states(plant: ModalPlant) -> int:
+    return plant.state_space()[0].shape[0]
+
+
+def reidentified(plant: ModalPlant) -> tuple:
+    """``(kept, absorbed)`` effects of ``plant`` when its linear part is identified again.
+
+    An effect that adds states of its own to the linear dynamics (an amplifier lag, an extra
+    mode) is part of what the identification estimates (delay and modes): absorbed.  Every
+    other effect is kept and compensated in the data by :func:`compensate`: ``input``,
+    ``force`` and ``output`` effects, pure delays, and structural effects that change the
+    rigid body's own dynamics (a pivot spring), which the identification cannot represent."""
+    n0 = _n_states(plant.copy(effects=[]))
+    kept, absorbed = [], []
+    for e in plant.effects:
+        own = e.kind == "structural" and _n_states(plant.copy(effects=[e])) > n0
+        (absorbed if own else kept).append(e)
+    return kept, absorbed
+
+
+def compensate(plant: ModalPlant, log: SeekLog, res: Residual | None = None) -> SeekLog:
+    """The log as the linear part of ``plant`` (rigid body, modes, bias, delay ``plant.delay_s``:
+    what :func:`identification.identify.identify` models) sees it, given its effects.
+
+    Every current column (``current_a`` and the sub-step columns of a multirate log) is mapped
+    through the ``input`` effects at the measured position (``DiscretePlant.command``) and
+    delayed by the extra delay of the ``input_delay`` effects; the current-equivalent of the
+    state-dependent forces beyond the constant bias (``DiscretePlant.net_force`` minus
+    ``bias_a``, plus the terms structural effects add to the rigid body's row of
+    ``ModalPlant.state_space``, e.g. the pivot's stiffness and damping), advanced by
+    ``plant.delay_s`` (it enters undelayed), is added; ``output`` effects are subtracted from the
+    position.  Effects are evaluated on the measured position and on the rigid-body velocity
+    of the reference simulation ``res`` (``simulate(..., record=True)`` of ``plant``, which
+    reproduces the model's own sticking in dwell) where it ran, else on the velocity estimated
+    from the position."""
+    dp = plant.discretize(log.dt)
+    t = log.time_s
+    y = log.position_track - sum((e.output(t) for e in plant.effects if e.kind == "output"), np.zeros(log.n))
+    v = velocity_estimate(log)
+    if res is not None and res.state is not None:
+        v = np.where(np.isfinite(res.state[:, 1]), res.state[:, 1], v)
+    A = plant.state_space()[0]
+    f = np.array([dp.net_force(a, b) for a, b in zip(y, v)]) - plant.bias_a + (A[1, 0] * y + A[1, 1] * v) / plant.k0
+    k = np.arange(log.n, dtype=float)
+    f = np.interp(k + plant.delay_s / log.dt, k, f)
+    extra_delay = (plant.total_delay_s - plant.delay_s) / log.dt
+
+    def cur(u):
+        c = np.array([dp.command(a, b) for a, b in zip(u, y)]) if dp._inputs else np.asarray(u, float)
+        return (np.interp(k - extra_delay, k, c) if extra_delay else c) + f
+
+    extra = {key: (cur(col) if _SUBSTEP.fullmatch(key) else col.copy()) for key, col in log.extra.items()}
+    return SeekLog(t.copy(), cur(log.current_a), y, log.target_track.copy(), log.sample_rate_hz,
+                   log.track_pitch_nm, dict(log.metadata), extra, log.source)
+
+
+def _reidentify(current: ModalPlant, fit: Data, val: Data, same: bool, cur_fit: Residual, cur_val: Residual,
+                it: int, rounds: int, say, notes: list):
+    """Backfitting between the linear identification and the effects: identify the linear plant
+    on the fit log compensated by ``current``'s effects (:func:`compensate`; with held-out seeks
+    the identification fits the even seeks only, as the loop), put the kept effects on it and
+    re-fit each of them (:func:`_backfit`); repeat while the validation RMS drops by > 1 %.
+    Returns ``(plant, fit residual, validation residual, steps, absorbed names)``; the input
+    plant when no round lowers the validation RMS."""
+    from .effects import effect_from_dict
+    from .identify import identify
+    kept, _ = reidentified(current)
+    A0 = current.copy(effects=[]).state_space()[0]
+    if not any(e.kind != "structural" or not np.array_equal(current.copy(effects=[e]).state_space()[0], A0)
+               for e in kept):       # nothing to compensate (at most pure delays): the data are the same
+        return current, cur_fit, cur_val, [], []
+    log = fit.log
+    best = (current, cur_fit, cur_val, [], [])
+    plant = current
+    whole = seek_windows(log)
+    for r in range(rounds):
+        tr = time.time()
+        kept, absorbed = reidentified(plant)
+        comp = compensate(plant, log, simulate(plant, log, whole, continuous=False, record=True))
+        try:
+            ident = identify(comp, method="robust", holdout_every=2 if same else 0)
+        except (ValueError, np.linalg.LinAlgError, FloatingPointError) as exc:
+            notes.append(f"iteration {it}: re-identification on the compensated log failed ({exc})")
+            break
+        new = ident.plant.copy(effects=[effect_from_dict(e.to_dict()) for e in kept])
+        new.meta = dict(current.meta)
+        rv = evaluate(new, val, same, record=True)
+        rf, steps = None, []
+        for name in dict.fromkeys(e.name for e in new.effects):
+            st, fitted = _backfit(name, new, fit, val, same, rv, it, "after re-identification")
+            if st is not None:
+                steps.append(st)
+                new, (rf, rv) = st.plant, fitted
+        say(f"  re-identification round {r + 1}: validation rms {rv.rms:.4g} (was {best[2].rms:.4g}; "
+            f"k0 {new.k0:.4g}, {len(new.modes)} modes, delay {1e6 * new.total_delay_s:.2f} us; "
+            f"{time.time() - tr:.1f} s)")
+        if rv.rms >= best[2].rms:
+            break
+        gain = 1 - rv.rms / best[2].rms
+        best = (new, rf if rf is not None else evaluate(new, fit, record=True), rv, best[3] + steps,
+                list(dict.fromkeys(best[4] + [e.name for e in absorbed])))
+        plant = new
+        if gain < 0.01:
+            break
+    return best
+
+
 def split_data(log: SeekLog, validation: SeekLog | None = None):
     """Fit and validation :class:`Data` (held-out odd seeks when no validation log)."""
     w = seek_windows(log)
@@ -208,7 +323,8 @@ def split_data(log: SeekLog, validation: SeekLog | None = None):
 
 def close_loop(log: SeekLog, model: ModalPlant, validation: SeekLog | None = None,
                candidates=None, min_drop: float = 0.05, min_bic: float = 6.0, min_seeks: float = 0.6,
-               proxy_margin: float = 0.05, max_steps: int = 6, verbose: bool = False) -> LoopResult:
+               proxy_margin: float = 0.05, max_steps: int = 6, reidentify: int = 3,
+               verbose: bool = False) -> LoopResult:
     """Augment ``model`` with effects that the data support (see the module notes).
 
     Parameters
@@ -234,6 +350,11 @@ def close_loop(log: SeekLog, model: ModalPlant, validation: SeekLog | None = Non
         is only a proxy for that structure and is not accepted [-].
     max_steps : int
         Maximum number of accepted effects.
+    reidentify : int
+        After each acceptance, at most this many rounds of backfitting between the linear
+        identification (:func:`identification.identify.identify` on the fit log compensated by
+        the accepted effects, :func:`compensate`) and the effects' re-fit; a round is kept only
+        if it lowers the validation RMS (0: never re-identify).
     """
     t0 = time.time()
     names = list(candidates or CANDIDATES)
@@ -251,7 +372,7 @@ def close_loop(log: SeekLog, model: ModalPlant, validation: SeekLog | None = Non
     cur_bic = bic(cur_fit.e, fit, 0, n_eff)
     analysis_before = describe_residual(current, val.freeze(current, cur_val), cur_val)
     say(f"start: validation rms {cur_val.rms:.4g} track ({time.time() - t0:.1f} s)")
-    steps, accepted = [], []
+    steps, accepted, reids = [], [], []
     for it in range(1, max_steps + 1):
         fdata = fit.freeze(current, cur_fit)
         ev = evidence_lines(current, fdata, cur_fit)
@@ -306,6 +427,20 @@ def close_loop(log: SeekLog, model: ModalPlant, validation: SeekLog | None = Non
                 steps.append(st)
                 current, cur_fit, cur_val = st.plant, fitted[0], fitted[1]
                 say(f"  re-fitted {old}: validation rms {cur_val.rms:.4g}")
+        if reidentify:
+            before = cur_val.rms
+            current, cur_fit, cur_val, rsteps, absorbed = _reidentify(current, fit, val, same, cur_fit, cur_val,
+                                                                      it, reidentify, say, notes)
+            if cur_val.rms < before:
+                steps += rsteps
+                accepted = [a for a in accepted if a not in absorbed]
+                reids.append({"iteration": it, "rms_before": float(before), "rms_after": float(cur_val.rms),
+                              "k0": float(current.k0), "modes_hz": [float(m.freq_hz) for m in current.modes],
+                              "delay_s": float(current.delay_s), "absorbed": absorbed})
+                notes.append(f"iteration {it}: linear plant re-identified on the log compensated by the accepted "
+                             f"effects and the effects re-fitted: validation rms {before:.4g} -> {cur_val.rms:.4g}"
+                             + (f" ({', '.join(absorbed)} re-estimated as part of the linear plant)" if absorbed else ""))
+                say("  " + notes[-1])
         n_eff = effective_n(cur_fit.e, fit)
         cur_bic = bic(cur_fit.e, fit, 0, n_eff)
     plant = current.copy()
@@ -314,6 +449,7 @@ def close_loop(log: SeekLog, model: ModalPlant, validation: SeekLog | None = Non
         "validation": "validation log" if not same else "held-out odd seeks of the log",
         "base_refit": {"kept": bool(base_refit), "k0": float(refit.k0), "bias_a": float(refit.bias_a),
                        "rms_track": float(rv_base.rms)},
+        "reidentified": reids,
         "accepted": accepted})
     fdata, vdata = fit.freeze(current, cur_fit), val.freeze(current, cur_val)
     analysis_after = describe_residual(current, vdata, cur_val)

@@ -316,6 +316,9 @@ class Residual:
         With ``simulate(..., record=True)``: the command after ``input`` effects and the
         net undelayed force (bias + ``force`` effects) the simulation applied [A]
         (NaN where not simulated).
+    state : ndarray or None
+        With ``record=True``: ``(n, 2)`` rigid-body position [track] and velocity [track/s]
+        of the simulation at each step (NaN where not simulated).
     """
 
     windows: Windows
@@ -324,6 +327,7 @@ class Residual:
     log: SeekLog
     cmd: np.ndarray | None = None      #: command after input effects [A] (``record=True``)
     force: np.ndarray | None = None    #: net undelayed force [A] (``record=True``)
+    state: np.ndarray | None = None    #: (n, 2) simulated rigid position, velocity (``record=True``)
 
     @property
     def rms(self) -> float:
@@ -390,6 +394,7 @@ def simulate(plant: ModalPlant, log: SeekLog, windows: Windows, passes: int | No
         step, output = dp.step, dp.output
         cmd_r = np.full(log.n, np.nan) if record else None
         f_r = np.full(log.n, np.nan) if record else None
+        x_r = np.full((log.n, 2), np.nan) if record else None
         for a0, b0 in spans:
             if not continuous:   # from rest at the window start; time keeps the log's origin
                 dp.reset(*anchors[a0], current=u[max(a0 - 1, 0)], t0=log.time_s[0])
@@ -401,6 +406,7 @@ def simulate(plant: ModalPlant, log: SeekLog, windows: Windows, passes: int | No
                 if record:
                     cmd_r[k] = dp.command(u[k], dp.x[0])
                     f_r[k] = dp.net_force(dp.x[0], dp.x[1])
+                    x_r[k] = dp.x[:2]
                 step(u[k])
         e_parts, ys = [], np.full(log.n, np.nan)
         for a, b in windows.bounds:
@@ -410,7 +416,7 @@ def simulate(plant: ModalPlant, log: SeekLog, windows: Windows, passes: int | No
             ys[a:b] = ysim[a:b] + B @ c
             e_parts.append(r - B @ c)
             anchors[a] = (anchors[a][0] + c[0], anchors[a][1] + c[1])
-    return Residual(windows, np.concatenate(e_parts) if e_parts else np.zeros(0), ys, log, cmd_r, f_r)
+    return Residual(windows, np.concatenate(e_parts) if e_parts else np.zeros(0), ys, log, cmd_r, f_r, x_r)
 
 
 def residual(plant: ModalPlant, log: SeekLog, windows: Windows | None = None) -> Residual:

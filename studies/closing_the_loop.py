@@ -361,6 +361,8 @@ def main(argv=None):
     cases = a.cases.split(",")
     jobs = [(c, a.seed + 17 * (EFFECTS + OTHER).index(c), a.seeks, a.model, out) for c in cases]
     rows = {}
+    prev = json.loads((out / "results.json").read_text()) if (out / "results.json").exists() else []
+    order = list(dict.fromkeys([r["case"] for r in prev] + cases))     # other cases' rows are kept
     if a.jobs > 1:
         from concurrent.futures import ProcessPoolExecutor
         pool = ProcessPoolExecutor(a.jobs)
@@ -372,7 +374,8 @@ def main(argv=None):
         print(f"{case:27s} first={row['first']!s:26s} {row['rms_before']:.4g} -> {row['rms_after']:.4g} "
               f"({row['ratio']:.3f}) accepted={row['accepted']} err={row['error']} [{row['wall_s']:.0f} s]",
               flush=True)
-        done = [rows[c] for c in cases if c in rows]
+        old = {r["case"]: r for r in prev}
+        done = [rows.get(c, old.get(c)) for c in order if c in rows or c in old]
         atomic_write_text(out / "results.json", json.dumps(done, indent=1, default=float))
         atomic_write_text(out / "summary.md", table(done) + "\n")
     return [rows[c] for c in cases]

@@ -149,7 +149,7 @@ def test_cli_loop(tmp_path, monkeypatch):
 
     class Stub:
         plant = study.standin_model(truth.copy(effects=[]), 9)
-    monkeypatch.setattr(ident, "identify", lambda log, method="robust": Stub())
+    monkeypatch.setattr(ident, "identify", lambda log, method="robust", **options: Stub())
     rc = main(["loop", str(tmp_path / "a.csv"), "--validate", str(tmp_path / "b.npz"),
                "--report", str(tmp_path / "rep.json"), "--figures", str(tmp_path / "f")])
     assert rc == 0
@@ -219,3 +219,33 @@ def test_separate_validation_log_rephases_rro_and_finds_friction():
     R = close_loop(log, study.standin_model(truth.copy(effects=[]), 51), validation=vlog)
     assert R.accepted[0] == "friction" and "periodic_disturbance" in R.accepted, R.accepted
     assert R.error_after["rms_track"] <= 0.7 * R.error_before["rms_track"]
+
+
+def test_compensated_log_is_what_the_linear_plant_sees():
+    """``compensate``: the linear part of a plant driven by the compensated current (and measured
+    against the compensated position) reproduces the plant with its effects -- input, force,
+    structural (pivot) and output effects, evaluated by the plant's own DiscretePlant."""
+    from identification.closing import compensate, reidentified
+    from identification.effects import (CurrentSaturation, ExtraMode, Friction, InputDelay,
+                                        PeriodicDisturbance, PivotSpringDamper, PositionBias)
+    from identification.logs import SeekLog
+    from seekopt.presets import default_truth_plant
+    fs, n = 26400.0, 4000
+    eff = [CurrentSaturation(0.05), PositionBias([0.0, 400.0], [0.002, -0.003]),
+           PivotSpringDamper(8.0, 0.2, 100.0), InputDelay(15e-6),
+           PeriodicDisturbance(120.0, [1], [0.3], [-0.2]), ExtraMode(2000.0, 0.05, 0.01)]
+    truth = default_truth_plant().copy(effects=eff, bias_a=0.001)
+    kept, absorbed = reidentified(truth)
+    assert [e.name for e in absorbed] == ["extra_mode"]
+    plant = truth.copy(effects=kept)
+    t = np.arange(n) / fs
+    u = 0.06 * np.sin(2 * np.pi * 35 * t) + 0.02 * np.sign(np.sin(2 * np.pi * 90 * t))
+    y = plant.simulate_open_loop(u, 1 / fs, position0=50.0, history_a=u[0])
+    log = SeekLog(t, u, y, np.where(t < t[-1] / 2, 0.0, 300.0), fs)
+    c = compensate(plant, log)
+    lin = plant.copy(effects=[])
+    y_lin = lin.simulate_open_loop(c.current_a, 1 / fs, position0=50.0, history_a=c.current_a[0])
+    k = slice(200, n - 10)
+    err = np.abs(y_lin - c.position_track)[k].max()
+    assert err < 0.01 * np.ptp(y[k]), (err, np.ptp(y[k]))
+    assert np.abs(c.position_track - y).max() > 0.2            # the run-out is removed
