@@ -105,11 +105,11 @@ class LoopMaps:
         return (toeplitz_rows(self.y_u, rows, ncols), toeplitz_rows(self.y_r, rows, ncols),
                 self.s_yr[rows])
 
-    def current_rows(self, nsamples, ncols):
-        """``(T_iu, T_ir, s_ir)`` for the ``nsamples * L`` sub-steps of samples ``0..nsamples-1``."""
-        rows = np.arange(int(nsamples))
+    def current_rows(self, nsamples, ncols, stride: int = 1):
+        """``(T_iu, T_ir, s_ir)`` for the ``L`` sub-steps of samples ``0, stride, ..`` below ``nsamples``."""
+        rows = np.arange(0, int(nsamples), int(stride))
         return (toeplitz_rows(self.i_u, rows, ncols), toeplitz_rows(self.i_r, rows, ncols),
-                self.s_ir[:nsamples].ravel())
+                self.s_ir[rows].ravel())
 
 
 def hf_guard_matrix(k0: float, fs: float, L: int, nsub: int, f_lo: float, f_hi: float,
@@ -305,7 +305,8 @@ class SeekQP:
     def __init__(self, maps: list, nmax: int, horizon: int, imax: float, band: float, fs: float,
                  band_plants: list, solver, *, epigraph: bool = False, R=None, hf=None, slew=None,
                  rho: float = 1e-2, rho_q: float = 1e-3, w_e: float = 1.0, w_t: float = 10.0,
-                 eps: float = 1e-9, current_extra: int = 40):
+                 eps: float = 1e-9, current_extra: int = 40, stride: int = 1,
+                 cur_stride: int = 1):
         from .profiles import rigid_endpoint_matrix
         t_build = time.perf_counter()
         N, Hn, L = int(nmax), int(horizon), maps[0].L
@@ -330,23 +331,27 @@ class SeekQP:
 
         if not self.free_ref:
             Rfull = np.asarray(R, float)[:Hn, :N]
+        stride = max(int(stride), 1)
+        ks_other = np.unique(np.r_[ks[ks < N + 32][::stride], ks[ks >= N + 32]])   # thinned: other plants
         for i, m in enumerate(maps):
-            Tyu, Tyr, syr = m.position_rows(ks, N if self.free_ref else Hn)
+            ksi = ks if i == 0 else ks_other
+            Tyu, Tyr, syr = m.position_rows(ksi, N if self.free_ref else Hn)
             if self.free_ref:
                 a0, a1 = cols(imax * Tyu / band, Tyr / band)
-                off0, off1 = np.zeros(len(ks)), (syr - 1.0) / band
+                off0, off1 = np.zeros(len(ksi)), (syr - 1.0) / band
             else:
                 a0, a1 = cols(imax * (Tyu[:, :N] + Tyr @ Rfull) / band, None)
-                off0, off1 = np.zeros(len(ks)), -np.ones(len(ks)) / band
+                off0, off1 = np.zeros(len(ksi)), -np.ones(len(ksi)) / band
             reps = ((-1.0, "pes_hi"), (1.0, "pes_lo")) if epigraph else ((0.0, "pes"),)
             for sgn, kind in reps:
                 b0 = a0.copy()
                 if epigraph:
                     b0[:, -1] = sgn
                 A0.append(b0); A1.append(a1); c0.append(off0); c1.append(off1)
-                kinds += [(kind, i, int(k)) for k in ks]
-        for i, m in enumerate(maps):   # nominal: seek + 40 samples; other plants: seek + 8
-            Tiu, Tir, sir = m.current_rows(ncur if i == 0 else min(Hn, N + 8), N if self.free_ref else Hn)
+                kinds += [(kind, i, int(k)) for k in ksi]
+        for i, m in enumerate(maps):   # nominal: seek + 40 samples; other plants: seek + 8 (every cur_stride-th)
+            Tiu, Tir, sir = m.current_rows(ncur if i == 0 else min(Hn, N + 8), N if self.free_ref else Hn,
+                                           1 if i == 0 else max(int(cur_stride), 1))
             if self.free_ref:
                 a0, a1 = cols(Tiu, Tir / imax)
                 off0, off1 = np.full(len(sir), m.hold_a / imax), sir / imax
