@@ -49,9 +49,9 @@ class DemoConfig:
     quick: bool = False
     imax: float = 0.3
     settle: float = 0.1
-    lengths: tuple = (1, 10, 100, 1000, 10000)
+    lengths: tuple = (1, 10, 100, 1000, 3000)
     sweep_tpi_factors: tuple = (1.0, 2.0, 5.0)
-    sweep_lengths: tuple = (10, 100, 1000, 10000)
+    sweep_lengths: tuple = (10, 100, 1000, 3000)
     workers: int = 2
     html: bool = True
     designer: str = "ocp-robust"
