@@ -421,7 +421,7 @@ def close_loop(log: SeekLog, model: ModalPlant, validation: SeekLog | None = Non
         accepted.append(best.effect)
         current, cur_fit, cur_val = best.plant, rf, rv
         say(f"accepted {best.effect}: validation rms {rv.rms:.4g}")
-        for old in accepted[:-1] if len(accepted) > 1 else []:     # backfitting
+        for old in accepted[:-1]:     # backfitting
             st, fitted = _backfit(old, current, fit, val, same, cur_val, it, f"after accepting {best.effect}")
             if st is not None:
                 steps.append(st)

@@ -353,9 +353,9 @@ def _plot_traces(plant, truth, controller, cells, tpi, tracks, imax, settle, fol
     """Fig. 9/10-style traces (:func:`seekopt.bench.plot_bench`) of the three profiles of one seek,
     played on the truth plant when known, else on the identified plant."""
     from .bench import BenchResult, BenchRow, plot_bench
-    from .metrics import SeekMetrics
+    from .metrics import evaluate_profile
     from .profiles import Profile
-    from .sweep import baseline_profile, cell_key, evaluate
+    from .sweep import baseline_profile, cell_key
     evalp = truth or plant
     c = cells.get(cell_key(tpi, tracks))
     profs = [(k, baseline_profile(plant, controller.sample_rate_hz, k, tracks, imax, settle))
@@ -364,8 +364,8 @@ def _plot_traces(plant, truth, controller, cells, tpi, tracks, imax, settle, fol
         profs.append(("optimal", Profile.from_dict(c["optimal_profile"])))
     rows = []
     for kind, p in profs:
-        m = evaluate(evalp, controller, p, settle, None, plant.k0)
-        rows.append(BenchRow(kind, kind, SeekMetrics(**m), profile=p))
+        m = evaluate_profile(evalp, controller, p, settle=settle, k0_for_tbb=plant.k0)
+        rows.append(BenchRow(kind, kind, m, profile=p))
     from .profiles import t_bang_bang
     res = BenchResult(float(tracks), imax, settle, t_bang_bang(tracks, plant.k0, imax), rows)
     return plot_bench(res, evalp, controller, Path(folder))

@@ -17,15 +17,17 @@ from __future__ import annotations
 import os
 import uuid
 
-__all__ = ["EngineError", "iter_serial", "iter_pool", "iter_dask", "make_pool"]
+__all__ = ["EngineError", "iter_serial", "iter_pool", "iter_dask", "make_pool", "one_line"]
 
 
 class EngineError(ValueError):
     """An engine cannot start (no cluster, bad address); one line."""
 
 
-def _one_line(exc: BaseException) -> str:
-    return " ".join(f"{type(exc).__name__}: {exc}".split())[:200]
+def one_line(exc: BaseException) -> str:
+    """``"<Type>: <message>"`` on one line, at most 300 characters (errors saved and printed)."""
+    text = " ".join(str(exc).split())
+    return f"{type(exc).__name__}: {text}"[:300]
 
 
 def iter_serial(fn, payloads):
@@ -91,7 +93,7 @@ def iter_dask(fn, payloads, address: str = "local", workers: int | None = None, 
             if cluster is not None:
                 cluster.close()
             where = "cannot start a local Dask cluster" if address == "local" else f"cannot connect to {address}"
-            raise EngineError(f"dask: {where} ({_one_line(exc)})") from None
+            raise EngineError(f"dask: {where} ({one_line(exc)})") from None
     try:
         futs = {}
         for p in payloads:

@@ -329,7 +329,7 @@ class SeekDesigner:
         self._maps, self._maps_h = None, 0
         self._qps: dict = {}
         self.builds = 0
-        self.thin_above, self.thin_stride, self.thin_current = THIN_ABOVE, THIN_STRIDE, False
+        self.thin_above, self.thin_stride = THIN_ABOVE, THIN_STRIDE
 
     # ------------------------------------------------------------------ structures
     def _loop_maps(self, horizon: int) -> list:
@@ -360,13 +360,12 @@ class SeekDesigner:
             self._qps[key] = _qp.SeekQP(
                 maps, nmax, H, self.imax, self.settle, self.fs, band_plants,
                 lambda n, m: _qp.make_qp_solver(n, m, self.solver_name, self.solver_options),
-                epigraph=epigraph, R=R, hf=hf, slew=self.slew, stride=self._stride(nmax),
-                cur_stride=self._stride(nmax) if self.thin_current else 1)
+                epigraph=epigraph, R=R, hf=hf, slew=self.slew, stride=self._stride(nmax))
             self.builds += 1
         return self._qps[key]
 
     def _stride(self, nmax: int) -> int:
-        """Row stride of the non-nominal plants' band and current rows (1: every sample)."""
+        """Row stride of the non-nominal plants' band rows (1: every sample)."""
         return 1 if nmax <= self.thin_above else self.thin_stride
 
     def _classes(self, n_from: int):

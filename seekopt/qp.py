@@ -105,9 +105,9 @@ class LoopMaps:
         return (toeplitz_rows(self.y_u, rows, ncols), toeplitz_rows(self.y_r, rows, ncols),
                 self.s_yr[rows])
 
-    def current_rows(self, nsamples, ncols, stride: int = 1):
-        """``(T_iu, T_ir, s_ir)`` for the ``L`` sub-steps of samples ``0, stride, ..`` below ``nsamples``."""
-        rows = np.arange(0, int(nsamples), int(stride))
+    def current_rows(self, nsamples, ncols):
+        """``(T_iu, T_ir, s_ir)`` for the ``L`` sub-steps of samples ``0..nsamples-1``."""
+        rows = np.arange(int(nsamples))
         return (toeplitz_rows(self.i_u, rows, ncols), toeplitz_rows(self.i_r, rows, ncols),
                 self.s_ir[rows].ravel())
 
@@ -305,8 +305,7 @@ class SeekQP:
     def __init__(self, maps: list, nmax: int, horizon: int, imax: float, band: float, fs: float,
                  band_plants: list, solver, *, epigraph: bool = False, R=None, hf=None, slew=None,
                  rho: float = 1e-2, rho_q: float = 1e-3, w_e: float = 1.0, w_t: float = 10.0,
-                 eps: float = 1e-9, current_extra: int = 40, stride: int = 1,
-                 cur_stride: int = 1):
+                 eps: float = 1e-9, current_extra: int = 40, stride: int = 1):
         from .profiles import rigid_endpoint_matrix
         t_build = time.perf_counter()
         N, Hn, L = int(nmax), int(horizon), maps[0].L
@@ -349,9 +348,8 @@ class SeekQP:
                     b0[:, -1] = sgn
                 A0.append(b0); A1.append(a1); c0.append(off0); c1.append(off1)
                 kinds += [(kind, i, int(k)) for k in ksi]
-        for i, m in enumerate(maps):   # nominal: seek + 40 samples; other plants: seek + 8 (every cur_stride-th)
-            Tiu, Tir, sir = m.current_rows(ncur if i == 0 else min(Hn, N + 8), N if self.free_ref else Hn,
-                                           1 if i == 0 else max(int(cur_stride), 1))
+        for i, m in enumerate(maps):   # nominal: seek + 40 samples; other plants: seek + 8 (never thinned)
+            Tiu, Tir, sir = m.current_rows(ncur if i == 0 else min(Hn, N + 8), N if self.free_ref else Hn)
             if self.free_ref:
                 a0, a1 = cols(Tiu, Tir / imax)
                 off0, off1 = np.full(len(sir), m.hold_a / imax), sir / imax

@@ -62,7 +62,7 @@ from identification.plant import TRACK_PITCH_PER_TPI_NM, ModalPlant
 
 from .bench import baseline_profile as _bench_baseline, tuned_baseline
 from .controller import Controller
-from .engines import EngineError, iter_dask, iter_pool, iter_serial, make_pool
+from .engines import EngineError, iter_dask, iter_pool, iter_serial, make_pool, one_line
 from .profiles import t_bang_bang
 
 __all__ = ["SweepError", "SweepConfig", "SweepSummary", "parse_tpi", "parse_tracks", "cell_key",
@@ -321,11 +321,6 @@ def _cached(key, make):
     return value
 
 
-def _one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).split())
-    return f"{type(exc).__name__}: {text}"[:300]
-
-
 def evaluate(plant, controller, profile, settle, horizon_s, k0) -> dict:
     """:func:`seekopt.metrics.evaluate_profile` as a dict (the one simulator)."""
     from .metrics import evaluate_profile
@@ -395,7 +390,7 @@ def compute_cell(payload: dict) -> dict:
                 row.update({k: (bool(m[k]) if k == "settled" else _f(m[k])) for k in _METRICS})
             except Exception as exc:  # noqa: BLE001 - a failing cell is data, not a crash
                 row.update(status="infeasible" if type(exc).__name__ == "DesignInfeasible" else "error",
-                           error=_one_line(exc))
+                           error=one_line(exc))
             rows.append(row)
         if opt is not None:
             opt.meta.update(plant_hash=plant.hash(), controller_hash=ctrl.hash(), tpi=tpi)
@@ -506,7 +501,7 @@ def run_sweep(cfg: SweepConfig, outdir, *, engine: str = "process", workers: int
     except SweepError:
         raise
     except Exception as exc:  # noqa: BLE001 - module:attr that cannot be imported
-        raise SweepError(f"designer {cfg.designer!r}: {_one_line(exc)}") from None
+        raise SweepError(f"designer {cfg.designer!r}: {one_line(exc)}") from None
     saved = _prepare(cfg, outdir)
     todo = [(t, k) for t, k in cfg.cells() if cell_key(t, k) not in saved]
     total = len(cfg.cells())
@@ -534,7 +529,7 @@ def run_sweep(cfg: SweepConfig, outdir, *, engine: str = "process", workers: int
             for p, cell, exc in _engine_errors_as_sweep_errors(it):
                 key = cell_key(p["tpi"], p["tracks"])
                 if exc is not None:
-                    summary.engine_errors[key] = _one_line(exc)
+                    summary.engine_errors[key] = one_line(exc)
                 else:
                     write_atomic(outdir / "cells" / f"{key}.json", json.dumps(cell))
                     _journal(outdir, f"computed {key} {cell['computation_id']}")
@@ -552,7 +547,7 @@ def run_sweep(cfg: SweepConfig, outdir, *, engine: str = "process", workers: int
         try:
             summary.figures = plot_sweep(pd.read_csv(summary.table), outdir / "figures")
         except Exception as exc:  # noqa: BLE001 - the table is saved; say so, do not lose the run
-            print(f"sweep: figures failed ({_one_line(exc)}); the table {summary.table} is complete",
+            print(f"sweep: figures failed ({one_line(exc)}); the table {summary.table} is complete",
                   file=sys.stderr)
     return summary
 

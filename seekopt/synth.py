@@ -135,14 +135,14 @@ def synthesize(cfg: SynthConfig | None = None, plant: ModalPlant | None = None,
         r[s.start:end] = s.from_track + ref[:end - s.start]
         r[end:] = s.to_track
         target[s.start:] = s.to_track
-    sim = simulate_2dof(truth, controller, u_ff, r, disturbances=disturbances, record_substeps=True)
+    sim = simulate_2dof(truth, controller, u_ff, r, disturbances=disturbances, record_substeps=cfg.log_substeps)
     k_keep = int(round(cfg.preroll_s * fs)) - int(round(0.002 * fs))  # keep 2 ms before the first seek
     meta = {"generator": "seekopt.synth", "seed": str(cfg.seed),
             "truth_plant_hash": truth.hash(), "n_seeks": str(cfg.n_seeks)}
     sl = slice(max(k_keep, 0), n)
-    L = sim.current_sub_a.shape[1]          # a multirate drive logs its sub-step currents too
-    substeps = ({f"current_sub{j + 1}_a": sim.current_sub_a[sl, j] for j in range(L)}
-                if cfg.log_substeps and L > 1 else {})
+    sub = sim.current_sub_a                 # a multirate drive logs its sub-step currents too
+    substeps = ({f"current_sub{j + 1}_a": sub[sl, j] for j in range(sub.shape[1])}
+                if sub is not None and sub.shape[1] > 1 else {})
     log = SeekLog.from_arrays(
         time_s=sim.time_s[sl] - sim.time_s[sl][0], current_a=sim.current_a[sl],
         position_track=sim.position_track[sl], target_track=target[sl], sample_rate_hz=fs,
