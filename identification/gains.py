@@ -33,7 +33,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import signal
 
-from .plant import ModalPlant, Mode
+from .plant import ModalPlant, Mode, block_tf
 
 __all__ = ["mode_filter", "mode_filters", "fir_filter", "mode_response", "mode_regressors", "modal_gains",
            "GainFit", "VarPro", "ar_whitener", "detect_period", "periodic_columns", "sandwich_cov"]
@@ -74,14 +74,13 @@ def mode_filters(freqs_hz, zetas, dt: float, delay_s: float = 0.0):
     out = []
     for r in range(len(freqs_hz)):
         i = slice(2 + 2 * r, 4 + 2 * r)
-        Phi, gn, go, C = dp.Phi[i, i], dp.G_new[i], dp.G_old[i], dp.C[i]
-        # H(z) = C adj(zI - Phi) g / det(zI - Phi),  det = z^2 - tr(Phi) z + det(Phi)
-        a = np.array([1.0, -np.trace(Phi), np.linalg.det(Phi)])
-        adj = np.array([[-Phi[1, 1], Phi[0, 1]], [Phi[1, 0], -Phi[0, 0]]])
+        Phi, C = dp.Phi[i, i], dp.C[i]
+        nn, a = block_tf(Phi, C, dp.G_new[i])
+        no, _ = block_tf(Phi, C, dp.G_old[i])
         b = np.zeros(m + 4)
         # (n1 z + n0) / (z^2 + ..) = (n1 z^-1 + n0 z^-2) / (1 + ..); shifted by m (new), m + 1 (old)
-        b[m + 1:m + 3] += [C @ gn, C @ adj @ gn]
-        b[m + 2:m + 4] += [C @ go, C @ adj @ go]
+        b[m + 1:m + 3] += nn
+        b[m + 2:m + 4] += no
         out.append((b, a))
     return out
 

@@ -43,7 +43,7 @@ from .effects import (AmplifierLag, Effect, ExtraMode, InputDelay, PivotSpringDa
 from .fileio import atomic_write_text
 
 __all__ = ["Mode", "ModalPlant", "DiscretePlant", "PlantError", "TRACK_PITCH_PER_TPI_NM",
-           "atomic_write_text"]
+           "atomic_write_text", "block_tf"]
 
 #: track pitch [nm] = TRACK_PITCH_PER_TPI_NM / TPI (25.4 mm per inch)
 TRACK_PITCH_PER_TPI_NM = 25.4e6
@@ -446,6 +446,16 @@ class DiscretePlant:
             A[n + i, n + i - 1] = 1.0
         C[0, :n] = self.C
         return A, B, C, np.zeros((1, 1))
+
+
+def block_tf(Phi: np.ndarray, c: np.ndarray, g: np.ndarray):
+    """Transfer function ``c (zI - Phi)^-1 g`` of one 2-state block of a :class:`DiscretePlant`
+    (rigid body or one mode): numerator ``[n1, n0]`` and denominator ``[1, a1, a2]`` in powers of
+    ``z^-1`` after one sample (``(n1 z + n0) / (z^2 + a1 z + a2)``)."""
+    (p00, p01), (p10, p11) = Phi
+    n1 = c[0] * g[0] + c[1] * g[1]
+    n0 = -c[0] * p11 * g[0] + c[0] * p01 * g[1] + c[1] * p10 * g[0] - c[1] * p00 * g[1]
+    return np.array([n1, n0]), np.array([1.0, -(p00 + p11), p00 * p11 - p01 * p10])
 
 
 def _zoh(A: np.ndarray, B: np.ndarray, h: float):

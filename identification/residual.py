@@ -35,7 +35,7 @@ from scipy.signal import lfilter, lfilter_zi, savgol_filter
 
 from .effects import AmplifierLag
 from .logs import SeekLog, segment_seeks
-from .plant import ModalPlant
+from .plant import ModalPlant, block_tf
 
 __all__ = ["Windows", "seek_windows", "LinearModel", "Residual", "simulate", "residual",
            "fit_percent", "velocity_estimate", "eval_inputs", "eval_forces", "eval_outputs",
@@ -158,14 +158,6 @@ def eval_outputs(effects, t: np.ndarray) -> np.ndarray:
 
 
 # ------------------------------------------------------------------ linear engine
-def _tf2(Phi: np.ndarray, c: np.ndarray, g: np.ndarray):
-    """Numerator ``[n1, n0]`` and denominator ``[1, a1, a2]`` of ``c (zI - Phi)^-1 g`` (2x2)."""
-    (p00, p01), (p10, p11) = Phi
-    n1 = c[0] * g[0] + c[1] * g[1]
-    n0 = -c[0] * p11 * g[0] + c[0] * p01 * g[1] + c[1] * p10 * g[0] - c[1] * p00 * g[1]
-    return np.array([n1, n0]), np.array([1.0, -(p00 + p11), p00 * p11 - p01 * p10])
-
-
 _LM_CACHE: dict = {}
 
 
@@ -191,10 +183,10 @@ def _blocks(plant: ModalPlant, dt: float):
     for i in range(nb):
         s = slice(2 * i, 2 * i + 2)
         P, c = Phi[s, s], dp.C[s]
-        bn, a = _tf2(P, c, dp.G_new[s])
-        bo, _ = _tf2(P, c, dp.G_old[s])
-        bf, _ = _tf2(P, c, dp.G_f[s])
-        bl = _tf2(P, c, Phi[s, lag])[0] if lag is not None else None
+        bn, a = block_tf(P, c, dp.G_new[s])
+        bo, _ = block_tf(P, c, dp.G_old[s])
+        bf, _ = block_tf(P, c, dp.G_f[s])
+        bl = block_tf(P, c, Phi[s, lag])[0] if lag is not None else None
         blocks.append(dict(P=P, a=a, b_cmd=np.array([0.0, bn[0], bn[1] + bo[0], bo[1]]),
                            b_f=np.r_[0.0, bf], b_lag=None if bl is None else np.r_[0.0, bl]))
     lag_b = lag_a = None
