@@ -2,7 +2,7 @@
 
 For each case (each library effect at a random, seeded strength; a clean log; the
 benchmark's RRO; two effects; effects outside the library) a log is synthesised,
-the loop (:func:`identification.closing.close_loop`) is run on it with held-out
+the loop (:func:`identification.loop.closing.close_loop`) is run on it with held-out
 seeks as validation, and the table of validation RMS / fit % before and after,
 accepted effects and parameter errors is written, with the Markdown report and
 figures per case::
@@ -35,12 +35,12 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from identification.closing import close_loop, evaluate  # noqa: E402
-from identification.effects import Effect  # noqa: E402
-from identification.loop_report import FIGURES, figures, markdown  # noqa: E402
-from identification.plant import Mode, atomic_write_text  # noqa: E402
-from seekopt.presets import default_truth_plant  # noqa: E402
-from seekopt.synth import SynthConfig, synthesize  # noqa: E402
+from identification.loop.closing import close_loop, evaluate  # noqa: E402
+from identification.model.effects import Effect  # noqa: E402
+from identification.loop.report import FIGURES, figures, markdown  # noqa: E402
+from identification.model.plant import Mode, atomic_write_text  # noqa: E402
+from seekopt.drive.presets import default_truth_plant  # noqa: E402
+from seekopt.evaluate.synth import SynthConfig, synthesize  # noqa: E402
 
 FULL_FIGURES = ("friction", "rro", "dead_zone")   #: cases with every figure; others: residual_seeks.png only
 EFFECTS = ["input_delay", "amplifier_lag", "pivot_spring_damper", "position_bias", "friction",
@@ -125,8 +125,8 @@ def standin_model(truth_base, seed: int):
 
 def visited_range(cfg: SynthConfig, base) -> tuple:
     """Range of seek targets [track] of a synthetic schedule (5..95 % of them)."""
-    from seekopt.controller import Controller
-    from seekopt.synth import schedule_seeks
+    from seekopt.drive.controller import Controller
+    from seekopt.evaluate.synth import schedule_seeks
     seeks, _ = schedule_seeks(cfg, base.k0, Controller.nss().sample_rate_hz)
     t = np.array([s.to_track for s in seeks] + [seeks[0].from_track])
     return float(np.quantile(t, 0.05)), float(np.quantile(t, 0.95))
@@ -216,14 +216,14 @@ def identified_model(log, case: str, seed: int, n_seeks: int, out: Path | None =
 
     Cached as ``<out>/<case>/identified_plant.json`` (with the case, seed and number of
     seeks): identification takes 1-2 min per log and does not depend on the loop."""
-    from identification.plant import ModalPlant
+    from identification.model.plant import ModalPlant
     path = None if out is None else out / case / "identified_plant.json"
     key = {"case": case, "seed": seed, "n_seeks": n_seeks}
     if path is not None and path.exists():
         d = json.loads(path.read_text())
         if d.get("key") == key:
             return ModalPlant.from_dict(d["plant"]), float(d["identify_s"])
-    from identification.identify import identify
+    from identification.estimate.identify import identify
     t = time.time()
     m = identify(log, method="robust").plant
     t_id = time.time() - t
@@ -301,7 +301,7 @@ def truth_rms(truth, val, case: str) -> float:
     model reaches (NaN where the truth is not a plant: a test-only effect, a drift added open loop)."""
     if case in ("time_varying_gain", "dead_zone"):
         return float("nan")
-    from identification.effects import PeriodicDisturbance
+    from identification.model.effects import PeriodicDisturbance
     fs = val.log.sample_rate_hz       # the synthetic log's time starts preroll - 2 ms into the simulation
     t0 = (round(SynthConfig().preroll_s * fs) - round(0.002 * fs)) / fs
     effs = []
@@ -318,8 +318,8 @@ def truth_rms(truth, val, case: str) -> float:
 def refresh(out: Path, n_seeks: int) -> list:
     """Recompute the truth-model RMS and the parameter errors of ``out/results.json`` from the
     saved ``report.json`` plants (after a change of :func:`param_error`; no loop is run)."""
-    from identification.closing import split_data
-    from identification.plant import ModalPlant
+    from identification.loop.closing import split_data
+    from identification.model.plant import ModalPlant
     rows = json.loads((out / "results.json").read_text())
     for row in rows:
         case, seed = row["case"], row["seed"]

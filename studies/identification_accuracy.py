@@ -5,7 +5,7 @@ by the paper's LS Prony (eqs. 4-7), the pooled matrix pencil and the matrix penc
 projection (``refine_poles``), against the Cramér–Rao bound, for one window of n = 200 samples at
 fs = 26.4 kHz: a single mode (1738 Hz, zeta 0.02) and two modes (350 Hz zeta 0.03 + 1738 Hz zeta 0.02,
 equal amplitudes). Phases are uniform random per run; the noise std is set from the per-record SNR
-(``identification.prony.snr_db``: phase-averaged signal energy / (n sigma^2), all modes together). All
+(``identification.estimate.prony.snr_db``: phase-averaged signal energy / (n sigma^2), all modes together). All
 estimators are given the true model order (2 poles per mode); each true mode is matched to the estimated
 pole with the nearest natural frequency. The CRB column is ``sqrt(mean over runs of the CRB variance at
 that run's phases)``.
@@ -22,11 +22,11 @@ import sys
 import numpy as np
 
 try:
-    from identification.prony import (crb_modes, damped_sinusoid, ls_prony, matrix_pencil, refine_poles, snr_db,
+    from identification.estimate.prony import (crb_modes, damped_sinusoid, ls_prony, matrix_pencil, refine_poles, snr_db,
                                       z_to_modal)
 except ImportError:  # run as a script from anywhere
     sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    from identification.prony import (crb_modes, damped_sinusoid, ls_prony, matrix_pencil, refine_poles, snr_db,
+    from identification.estimate.prony import (crb_modes, damped_sinusoid, ls_prony, matrix_pencil, refine_poles, snr_db,
                                       z_to_modal)
 
 FS = 26_400.0
@@ -132,7 +132,7 @@ def end_to_end_table(seeds=(0, 1), n_seeks=120, big_samples=1_000_000, single_ra
         Markdown.
     """
     import time
-    from identification.identify import identify
+    from identification.estimate.identify import identify
     rows, speed, notes = [], [], []
     cases = [(seed, "multirate") for seed in seeds] + ([(seeds[0], "single-rate")] if single_rate else [])
     for seed, drive in cases:
@@ -184,10 +184,10 @@ def _pct(x, nd=2):
 def _e2e_log(seed, n_seeks, drive, cache_dir):
     """Synthesise (or load from ``cache_dir``) a log of the default truth; returns ((log, truth), seconds)."""
     import time
-    from identification.logs import read_log, write_log
-    from identification.plant import ModalPlant
-    from seekopt.presets import nss_controller_single_rate
-    from seekopt.synth import SynthConfig, synthesize
+    from identification.logs.seeklog import read_log, write_log
+    from identification.model.plant import ModalPlant
+    from seekopt.drive.presets import nss_controller_single_rate
+    from seekopt.evaluate.synth import SynthConfig, synthesize
     name = f"e2e_{drive}_{seed}_{n_seeks}"
     if cache_dir and os.path.exists(os.path.join(cache_dir, name + ".npz")):
         return (read_log(os.path.join(cache_dir, name + ".npz")),
@@ -232,7 +232,7 @@ def std_calibration_table(seeds=(0, 1, 2, 3), n_seeks=100, cache_dir=None):
     str
         Markdown.
     """
-    from identification.identify import identify
+    from identification.estimate.identify import identify
     sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "tests"))
     from test_identify import required_modes
     z = {"freq_hz": [], "zeta": [], "gain": [], "k0": []}

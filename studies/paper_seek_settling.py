@@ -12,12 +12,12 @@ Run::
 2. Optimal profiles on the same plant: minimum residual for the paper's seek times, minimum
    seek-settle time.
 3. Acceptance: designed from (a) the plant identified from a synthetic log
-   (``identification.identify``, or ``--identified``) and (b) the
+   (``identification.estimate.identify``, or ``--identified``) and (b) the
    stand-in perturbed copy of the truth (modes +-2 %, gains +-20 %, delay +3 us, no modes above
    0.45 fs), each evaluated on the truth for K in {1, 10, 50, 200, 1000} at Imax = 0.3 A, and
    on the truth with the seek-induced modes (and all modes) shifted +-5 %.  Baselines twice: the
    shortest within Imax and the best-length ("tuned") one, tuned on the plant it is evaluated on
-   (the most a baseline can get; :func:`seekopt.bench.tuned_baseline`).
+   (the most a baseline can get; :func:`seekopt.evaluate.bench.tuned_baseline`).
 
 Writes figures to ``docs/figures/design/`` and the section between the ``paper_seek_settling``
 markers of ``docs/results_design.md``.
@@ -34,13 +34,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from identification.plant import ModalPlant, Mode  # noqa: E402
-from seekopt.bench import baseline_profile, mode_response, perturbed_plant, tuned_baseline  # noqa: E402
-from seekopt.controller import Controller  # noqa: E402
-from seekopt.metrics import evaluate_profile, simulate_profile  # noqa: E402
-from seekopt.ocp import RobustSpec, SeekDesigner  # noqa: E402
-from seekopt.presets import SEEK_MODES, default_truth_plant  # noqa: E402
-from seekopt.profiles import finish_profile, sine_profile, windowed_sine_profile  # noqa: E402
+from identification.model.plant import ModalPlant, Mode  # noqa: E402
+from seekopt.evaluate.bench import baseline_profile, mode_response, perturbed_plant, tuned_baseline  # noqa: E402
+from seekopt.drive.controller import Controller  # noqa: E402
+from seekopt.design.metrics import evaluate_profile, simulate_profile  # noqa: E402
+from seekopt.design.ocp import RobustSpec, SeekDesigner  # noqa: E402
+from seekopt.drive.presets import SEEK_MODES, default_truth_plant  # noqa: E402
+from seekopt.design.profiles import finish_profile, sine_profile, windowed_sine_profile  # noqa: E402
 
 FIG = ROOT / "docs" / "figures" / "design"
 DOC = ROOT / "docs" / "results_design.md"
@@ -67,8 +67,8 @@ def identified_plant(path: str | None) -> ModalPlant:
     """The plant in ``path``, or identified now from a synthetic log (seed 0, 120 seeks; about 20 s)."""
     if path:
         return ModalPlant.load(path)
-    from identification.identify import identify
-    from seekopt.synth import SynthConfig, synthesize
+    from identification.estimate.identify import identify
+    from seekopt.evaluate.synth import SynthConfig, synthesize
     t0 = time.time()
     log, _ = synthesize(SynthConfig(n_seeks=120, seed=0))
     plant = identify(log).plant

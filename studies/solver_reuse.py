@@ -4,7 +4,7 @@ Run::
 
     python studies/solver_reuse.py
 
-1. Reuse: one :class:`seekopt.ocp.SeekDesigner` (closed-loop maps, condensed matrices converted to
+1. Reuse: one :class:`seekopt.design.ocp.SeekDesigner` (closed-loop maps, condensed matrices converted to
    ``casadi.DM`` and the ``casadi.conic`` solver built once per seek-size class) designs a list of
    seeks; naive: a new designer (everything rebuilt) per seek.  Same answers, wall time per design.
 2. Solvers on the designer's own condensed QP (a bisection sequence of the K = 200 design, nominal
@@ -30,11 +30,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from seekopt import qp as qpmod  # noqa: E402
-from seekopt.bench import perturbed_plant  # noqa: E402
-from seekopt.controller import Controller  # noqa: E402
-from seekopt.ocp import SeekDesigner  # noqa: E402
-from seekopt.presets import default_truth_plant  # noqa: E402
+from seekopt.design import qp as qpmod  # noqa: E402
+from seekopt.evaluate.bench import perturbed_plant  # noqa: E402
+from seekopt.drive.controller import Controller  # noqa: E402
+from seekopt.design.ocp import SeekDesigner  # noqa: E402
+from seekopt.drive.presets import default_truth_plant  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "studies"))
 from paper_seek_settling import write_section  # noqa: E402

@@ -1,12 +1,12 @@
 """Study: how the seek-settle time of each profile grows with track density.
 
-The NSS truth plant (:func:`seekopt.presets.default_truth_plant`: benchmark v2 in
+The NSS truth plant (:func:`seekopt.drive.presets.default_truth_plant`: benchmark v2 in
 seek mode plus the seek-induced flex-cable and coil modes) and the NSS controller,
 re-expressed from 200k to 1000k TPI (physical gain and physical loop kept, settle
 band ±0.1 track), seek lengths 1 ... 10000 tracks, Imax 0.3 A: the optimal profile
-(:mod:`seekopt.ocp`) against sine and windowed sine (shortest within Imax, and at their
+(:mod:`seekopt.design.ocp`) against sine and windowed sine (shortest within Imax, and at their
 best duration), all evaluated by
-:func:`seekopt.metrics.evaluate_profile`.  Writes ``docs/results_sweep.md``.
+:func:`seekopt.design.metrics.evaluate_profile`.  Writes ``docs/results_sweep.md``.
 
 Usage::
 
@@ -28,10 +28,10 @@ sys.path.insert(0, str(ROOT))
 import pandas as pd  # noqa: E402
 
 from seekopt import __version__  # noqa: E402
-from seekopt.controller import Controller  # noqa: E402
-from seekopt.presets import default_truth_plant  # noqa: E402
-from seekopt.report import KIND_LABELS, markdown_table, savings_table, seek_settle_s  # noqa: E402
-from seekopt.sweep import ALL_KINDS, TIMING_COLUMNS, TUNE_FACTORS, SweepConfig, code_hash, parse_tpi, run_sweep  # noqa: E402
+from seekopt.drive.controller import Controller  # noqa: E402
+from seekopt.drive.presets import default_truth_plant  # noqa: E402
+from seekopt.app.report import KIND_LABELS, markdown_table, savings_table, seek_settle_s  # noqa: E402
+from seekopt.evaluate.sweep import ALL_KINDS, TIMING_COLUMNS, TUNE_FACTORS, SweepConfig, code_hash, parse_tpi, run_sweep  # noqa: E402
 
 TPI = "200k:1000k:9"
 LENGTHS = [1, 2, 5, 10, 20, 50, 100, 200, 500, 1000, 2000, 5000, 10000]
@@ -90,7 +90,7 @@ def write_markdown(df: pd.DataFrame, summary, cfg: SweepConfig, path: Path, cmd:
         f"seek lengths; designer `{cfg.designer}`; {summary.total} cells, "
         f"{n_bad} failed rows, {n_unsettled} rows not settled within the evaluation horizon (shown as –).",
         "- Seek-settle time: from the start of the seek until the position error stays within the band, "
-        "evaluated by `seekopt.metrics.evaluate_profile` (the one closed-loop simulator).",
+        "evaluated by `seekopt.design.metrics.evaluate_profile` (the one closed-loop simulator).",
         "- $T_{bb} = 2\\sqrt{K/(k_0 I_{max})}$: rigid-body bang-bang bound at that TPI.",
         "- Baselines (paper): sine and windowed-sine currents with the rigid-model 2DOF reference. "
         "`sine`/`windowed sine`: the shortest within Imax (the bench's choice); `(best T)`: the duration "

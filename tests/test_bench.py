@@ -2,13 +2,13 @@
 import numpy as np
 import pytest
 
-from identification.plant import ModalPlant, Mode
-from seekopt.bench import format_table, mode_response, perturbed_plant, run_bench, tuned_baseline
-from seekopt.metrics import SeekMetrics, evaluate_profile
-from seekopt.cli import main
-from seekopt.controller import Controller
-from seekopt.presets import default_truth_plant
-from seekopt.profiles import Profile, rigid_endpoint_matrix
+from identification.model.plant import ModalPlant, Mode
+from seekopt.evaluate.bench import format_table, mode_response, perturbed_plant, run_bench, tuned_baseline
+from seekopt.design.metrics import SeekMetrics, evaluate_profile
+from seekopt.app.cli import main
+from seekopt.drive.controller import Controller
+from seekopt.drive.presets import default_truth_plant
+from seekopt.design.profiles import Profile, rigid_endpoint_matrix
 
 FS = 26400.0
 

@@ -1,4 +1,4 @@
-"""Closing the loop on logs with undeclared effects (identification.closing, candidates, loop_report).
+"""Closing the loop on logs with undeclared effects (identification.loop.closing, candidates, loop_report).
 
 The default-run tests start from a "stand-in" model: the truth plant without the undeclared
 effect, slightly perturbed (``studies/closing_the_loop.standin_model``); effect strengths are
@@ -20,11 +20,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "studies"))
 import closing_the_loop as study  # noqa: E402
 
-from identification.closing import close_loop  # noqa: E402
-from identification.logs import write_log  # noqa: E402
-from identification.loop_report import write_report  # noqa: E402
-from identification.plant import ModalPlant  # noqa: E402
-from seekopt.synth import SynthConfig, synthesize  # noqa: E402
+from identification.loop.closing import close_loop  # noqa: E402
+from identification.logs.seeklog import write_log  # noqa: E402
+from identification.loop.report import write_report  # noqa: E402
+from identification.model.plant import ModalPlant  # noqa: E402
+from seekopt.evaluate.synth import SynthConfig, synthesize  # noqa: E402
 
 #: parameter tolerances (see param_error in the study for the definitions)
 TOL = {
@@ -50,9 +50,9 @@ def _check_single(row, effect):
 # ------------------------------------------------------------------------ fast
 def _noise_data(e_fn, n=60000, win=1000, seed=0):
     """A log-less Data whose windows are ``win`` samples long, and a residual ``e_fn(rng, n)``."""
-    from identification.fit_engine import Data
-    from identification.logs import SeekLog
-    from identification.residual import Windows
+    from identification.loop.fit_engine import Data
+    from identification.logs.seeklog import SeekLog
+    from identification.loop.residual import Windows
     rng = np.random.default_rng(seed)
     z = np.zeros(n)
     log = SeekLog(np.arange(n) / 1e4, z, z.copy(), z.copy(), 1e4)
@@ -61,7 +61,7 @@ def _noise_data(e_fn, n=60000, win=1000, seed=0):
 
 def test_effective_sample_size():
     from scipy.signal import lfilter
-    from identification.fit_engine import effective_n
+    from identification.loop.fit_engine import effective_n
     d, e = _noise_data(lambda r, n: r.standard_normal(n))
     assert effective_n(e, d) == pytest.approx(len(e), rel=0.05)          # white: every sample counts
     d, e = _noise_data(lambda r, n: lfilter([1.0], [1.0, -0.9], r.standard_normal(n)))
@@ -71,7 +71,7 @@ def test_effective_sample_size():
 
 def test_bic_prefers_a_real_smooth_misfit_over_noise():
     """A smooth misfit removed is a large BIC drop even though an AR noise model would predict it."""
-    from identification.fit_engine import bic, effective_n
+    from identification.loop.fit_engine import bic, effective_n
     d, noise = _noise_data(lambda r, n: 0.1 * r.standard_normal(n))
     smooth = np.sin(np.arange(len(noise)) * 2 * np.pi / 500.0)
     n_eff = effective_n(noise + smooth, d)
@@ -140,8 +140,8 @@ def test_effect_outside_the_library_is_not_claimed():
 
 
 def test_cli_loop(tmp_path, monkeypatch):
-    import identification.identify as ident
-    from seekopt.cli import main
+    import identification.estimate.identify as ident
+    from seekopt.app.cli import main
     log, truth = synthesize(SynthConfig(n_seeks=24, seed=9, rro=False,
                                         effects=[study.random_effect("current_saturation", np.random.default_rng(9))]))
     vlog, _ = synthesize(SynthConfig(n_seeks=16, seed=10, rro=False, effects=[e.to_dict() for e in truth.effects]))
@@ -229,11 +229,11 @@ def test_compensated_log_is_what_the_linear_plant_sees():
     """``compensate``: the linear part of a plant driven by the compensated current (and measured
     against the compensated position) reproduces the plant with its effects -- input, force,
     structural (pivot) and output effects, evaluated by the plant's own DiscretePlant."""
-    from identification.closing import compensate, reidentified
-    from identification.effects import (CurrentSaturation, ExtraMode, Friction, InputDelay,
+    from identification.loop.closing import compensate, reidentified
+    from identification.model.effects import (CurrentSaturation, ExtraMode, Friction, InputDelay,
                                         PeriodicDisturbance, PivotSpringDamper, PositionBias)
-    from identification.logs import SeekLog
-    from seekopt.presets import default_truth_plant
+    from identification.logs.seeklog import SeekLog
+    from seekopt.drive.presets import default_truth_plant
     fs, n = 26400.0, 4000
     eff = [CurrentSaturation(0.05), PositionBias([0.0, 400.0], [0.002, -0.003]),
            PivotSpringDamper(8.0, 0.2, 100.0), InputDelay(15e-6),

@@ -1,4 +1,4 @@
-"""Tests for seekopt.controller: JSON forms, validation, multirate runtime, lifting, loop analysis."""
+"""Tests for seekopt.drive.controller: JSON forms, validation, multirate runtime, lifting, loop analysis."""
 import json
 import time
 from pathlib import Path
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from seekopt.controller import (Controller, ControllerError, loop_analysis, plot_loop_analysis,
+from seekopt.drive.controller import (Controller, ControllerError, loop_analysis, plot_loop_analysis,
                                 print_loop_analysis)
 
 BENCH = Path(__file__).resolve().parents[1] / "seekopt" / "data" / "nss_hdd_benchmark.json"

@@ -1,14 +1,14 @@
-"""Tests for seekopt.demo: the bundled sample log, the quick pipeline end to end through the CLI,
+"""Tests for seekopt.app.demo: the bundled sample log, the quick pipeline end to end through the CLI,
 and a failing stage reported as one line (exit 2)."""
 import json
 
 import pandas as pd
 import pytest
 
-from identification.logs import read_log
-from seekopt import demo
-from seekopt.cli import main
-from seekopt.sweep import ALL_KINDS
+from identification.logs.seeklog import read_log
+from seekopt.app import demo
+from seekopt.app.cli import main
+from seekopt.evaluate.sweep import ALL_KINDS
 
 
 def test_bundled_sample_log():
@@ -21,7 +21,7 @@ def test_bundled_sample_log():
 
 
 def test_demo_quick_writes_report_with_figures(tmp_path, capsys):
-    pytest.importorskip("identification.identify", reason="identify not available")
+    pytest.importorskip("identification.estimate.identify", reason="identify not available")
     out = tmp_path / "out"
     assert main(["demo", "--quick", "-o", str(out)]) == 0
     stdout = capsys.readouterr().out

@@ -1,4 +1,4 @@
-"""Tests for seekopt.export: Q15/Q16.16 quantisation, C tables compiled and run against Python
+"""Tests for seekopt.export.tables: Q15/Q16.16 quantisation, C tables compiled and run against Python
 (within 1 LSB), CSV/JSON round trips, byte-reproducible output, one-line errors (exit 2)."""
 import json
 import os
@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 
 from seekopt import __version__
-from seekopt.cli import main
-from seekopt.controller import Controller
-from seekopt.export import (ExportError, load_tables, quantize_ff, quantize_ref, read_csv, read_json,
+from seekopt.app.cli import main
+from seekopt.drive.controller import Controller
+from seekopt.export.tables import (ExportError, load_tables, quantize_ff, quantize_ref, read_csv, read_json,
                             ref_frac_bits, write_c, write_csv, write_json)
-from seekopt.presets import default_truth_plant
-from seekopt.profiles import Profile
-from seekopt.sweep import SweepConfig, load_cells, run_sweep
+from seekopt.drive.presets import default_truth_plant
+from seekopt.design.profiles import Profile
+from seekopt.evaluate.sweep import SweepConfig, load_cells, run_sweep
 
 CC = shutil.which("cc") or shutil.which("gcc")
 

@@ -1,11 +1,11 @@
-"""Tests for identification.gains: the mode regressors (plant.py's discretisation), the paper's
+"""Tests for identification.estimate.gains: the mode regressors (plant.py's discretisation), the paper's
 eqs. (9)-(11), the variable-projection problem and its noise model / covariance helpers."""
 import numpy as np
 import pytest
 
-from identification.gains import (VarPro, ar_whitener, detect_period, fir_filter, modal_gains, mode_filters,
+from identification.estimate.gains import (VarPro, ar_whitener, detect_period, fir_filter, modal_gains, mode_filters,
                                   mode_regressors, mode_response, periodic_columns, sandwich_cov)
-from identification.plant import ModalPlant, Mode
+from identification.model.plant import ModalPlant, Mode
 
 FS = 26400.0
 DT = 1.0 / FS

@@ -1,4 +1,4 @@
-"""End-to-end tests of identification.identify on synthetic seek logs, figures and the CLI.
+"""End-to-end tests of identification.estimate.identify on synthetic seek logs, figures and the CLI.
 
 Which truth modes must be recovered
 -----------------------------------
@@ -8,7 +8,7 @@ is at least 3x the noise floor, computed from the truth plant and the log (:func
 * the mode's settle-window response is ``a_r = k0 g_r h_r * u`` (truth mode driven by the logged
   current) on every settle window ``[N, M]`` of at least 16 samples;
 * the noise is what the truth plant does not explain there: measured position minus the truth's
-  prediction (:func:`identification.identify.predict_segments`), i.e. sensor noise, flutter,
+  prediction (:func:`identification.estimate.identify.predict_segments`), i.e. sensor noise, flutter,
   run-out, force noise and the multirate model error;
 * both have the per-window initial position and velocity removed (what the fit cannot use) and the
   noise floor is the noise's averaged periodogram ``S(f)`` over the windows (power per sample);
@@ -25,13 +25,13 @@ import json
 import numpy as np
 import pytest
 
-from identification.identify import identify, predict_segments
-from identification.logs import LogError, SeekLog, segment_seeks, write_log
-from identification.plant import ModalPlant, Mode
-from identification.rigid import SegmentProjector
-from identification.gains import mode_response
-from seekopt.presets import nss_controller_single_rate
-from seekopt.synth import SynthConfig, synthesize
+from identification.estimate.identify import identify, predict_segments
+from identification.logs.seeklog import LogError, SeekLog, segment_seeks, write_log
+from identification.model.plant import ModalPlant, Mode
+from identification.estimate.rigid import SegmentProjector
+from identification.estimate.gains import mode_response
+from seekopt.drive.presets import nss_controller_single_rate
+from seekopt.evaluate.synth import SynthConfig, synthesize
 
 NFFT = 256
 
@@ -89,7 +89,7 @@ def table(truth, required, ids):
 
 def alt_truth():
     """A different drive: flex mode at 300 Hz, coil at 2.2 kHz, other damping and gains, other bias."""
-    from seekopt.presets import nss_plant
+    from seekopt.drive.presets import nss_plant
     p = nss_plant("v2")
     modes = sorted([Mode(300.0, 0.04, 0.003), Mode(2200.0, 0.02, 0.015)] + p.modes, key=lambda m: m.freq_hz)
     return p.copy(modes=modes, bias_a=-0.006)
@@ -221,8 +221,8 @@ def test_unusable_logs_raise_logerror():
 
 
 def test_cli_identify(default_log, default_ids, tmp_path, monkeypatch, capsys):
-    from seekopt import cli
-    import identification.identify as ident_mod
+    from seekopt.app import cli
+    import identification.estimate.identify as ident_mod
     log, _ = default_log
     path = tmp_path / "log.npz"
     write_log(log, path)

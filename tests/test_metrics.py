@@ -4,11 +4,11 @@ import math
 import numpy as np
 import pytest
 
-from seekopt.bench import baseline_profile
-from seekopt.controller import Controller
-from seekopt.metrics import SeekMetrics, evaluate_profile, settle_index, settle_time, worst_case
-from seekopt.presets import default_truth_plant
-from seekopt.profiles import t_bang_bang
+from seekopt.evaluate.bench import baseline_profile
+from seekopt.drive.controller import Controller
+from seekopt.design.metrics import SeekMetrics, evaluate_profile, settle_index, settle_time, worst_case
+from seekopt.drive.presets import default_truth_plant
+from seekopt.design.profiles import t_bang_bang
 
 FS = 26400.0
 

@@ -9,15 +9,15 @@ import math
 import numpy as np
 import pytest
 
-from seekopt import qp as qpmod
-from seekopt.bench import baseline_profile, perturbed_plant
-from seekopt.controller import Controller
-from seekopt.metrics import evaluate_profile, simulate_profile
-from identification.plant import Mode
-from seekopt.ocp import (DesignError, DesignInfeasible, DesignResult, RobustSpec, SeekDesigner,
+from seekopt.design import qp as qpmod
+from seekopt.evaluate.bench import baseline_profile, perturbed_plant
+from seekopt.drive.controller import Controller
+from seekopt.design.metrics import evaluate_profile, simulate_profile
+from identification.model.plant import Mode
+from seekopt.design.ocp import (DesignError, DesignInfeasible, DesignResult, RobustSpec, SeekDesigner,
                          design_seek, seek_induced)
-from seekopt.presets import SEEK_MODES, default_truth_plant
-from seekopt.profiles import Profile, rigid_endpoint_matrix, t_bang_bang
+from seekopt.drive.presets import SEEK_MODES, default_truth_plant
+from seekopt.design.profiles import Profile, rigid_endpoint_matrix, t_bang_bang
 
 IMAX = 0.3
 
@@ -214,8 +214,8 @@ IDENT_ROBUST = RobustSpec()
 @pytest.fixture(scope="module")
 def identified():
     """The plant identified from a synthetic log (seed 0, 120 seeks), by the current code (about 20 s)."""
-    from identification.identify import identify
-    from seekopt.synth import SynthConfig, synthesize
+    from identification.estimate.identify import identify
+    from seekopt.evaluate.synth import SynthConfig, synthesize
     log, _ = synthesize(SynthConfig(n_seeks=120, seed=0))
     plant = identify(log).plant
     return plant

@@ -5,10 +5,10 @@ import math
 import numpy as np
 import pytest
 
-from identification.effects import (AmplifierLag, CurrentSaturation, ExtraMode, Friction, InputDelay,
+from identification.model.effects import (AmplifierLag, CurrentSaturation, ExtraMode, Friction, InputDelay,
                                     PeriodicDisturbance, PivotSpringDamper, PositionBias,
                                     TorqueConstantVariation, effect_from_dict)
-from identification.plant import ModalPlant, Mode, PlantError
+from identification.model.plant import ModalPlant, Mode, PlantError
 
 K0 = 3.937e9
 DT = 1 / 52800

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 from scipy import integrate
 
-from identification.plant import ModalPlant
-from seekopt.profiles import (Profile, ProfileError, finish_profile, normalise_rest_to_rest,
+from identification.model.plant import ModalPlant
+from seekopt.design.profiles import (Profile, ProfileError, finish_profile, normalise_rest_to_rest,
                               rigid_endpoint_matrix, shortest_baseline, sine_profile, t_bang_bang,
                               windowed_sine_profile)
 

@@ -1,10 +1,10 @@
-"""Tests for identification.prony: LS Prony (paper eqs. 4-7), pooled matrix pencil, CRB."""
+"""Tests for identification.estimate.prony: LS Prony (paper eqs. 4-7), pooled matrix pencil, CRB."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from identification.prony import (PoleEstimate, crb_damped_sinusoid, crb_modes, damped_sinusoid, fit_amplitudes,
+from identification.estimate.prony import (PoleEstimate, crb_damped_sinusoid, crb_modes, damped_sinusoid, fit_amplitudes,
                                   ls_prony, matrix_pencil, modal_to_z, refine_poles, snr_db,
                                   stabilisation_diagram, z_to_modal)
 

@@ -1,4 +1,4 @@
-"""Residual simulation and analysis (identification.residual): the fast linear engine equals
+"""Residual simulation and analysis (identification.loop.residual): the fast linear engine equals
 DiscretePlant stepping, windows, and the statistical tests behave as stated on known signals."""
 from __future__ import annotations
 
@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from identification.effects import AmplifierLag, ExtraMode, InputDelay, PivotSpringDamper
-from identification.logs import SeekLog
-from identification.residual import LinearModel, Windows, fit_percent, seek_windows, simulate
-from identification.residual_analysis import (correlations, detect_spindle, nonlinear_tests, spectra,
+from identification.model.effects import AmplifierLag, ExtraMode, InputDelay, PivotSpringDamper
+from identification.logs.seeklog import SeekLog
+from identification.loop.residual import LinearModel, Windows, fit_percent, seek_windows, simulate
+from identification.loop.residual_analysis import (correlations, detect_spindle, nonlinear_tests, spectra,
                                               synchronous_average)
-from seekopt.presets import default_truth_plant
-from seekopt.synth import SynthConfig, synthesize
+from seekopt.drive.presets import default_truth_plant
+from seekopt.evaluate.synth import SynthConfig, synthesize
 
 
 @pytest.fixture(scope="module")

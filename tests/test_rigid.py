@@ -1,12 +1,12 @@
-"""Tests for identification.rigid: the paper's eq. (8), its relation to the ZOH of plant.py
+"""Tests for identification.estimate.rigid: the paper's eq. (8), its relation to the ZOH of plant.py
 (ERRATA item 5), the ZOH rigid response with fractional delay and the per-segment projection."""
 import numpy as np
 import pytest
 
-from identification.plant import ModalPlant
-from identification.rigid import (SegmentProjector, bias_response, double_sum, eq8_fit, k0_from_b0, rigid_fit,
+from identification.model.plant import ModalPlant
+from identification.estimate.rigid import (SegmentProjector, bias_response, double_sum, eq8_fit, k0_from_b0, rigid_fit,
                                   zoh_rigid_response)
-from seekopt.profiles import sine_profile
+from seekopt.design.profiles import sine_profile
 
 FS = 26400.0
 DT = 1.0 / FS

@@ -2,11 +2,11 @@
 import numpy as np
 import pytest
 
-from identification.plant import ModalPlant, Mode
-from seekopt.controller import Controller
-from seekopt.presets import default_truth_plant, nss_disturbances
-from seekopt.profiles import reference_from_model, shortest_baseline
-from seekopt.simulate import closed_loop_responses, simulate_2dof
+from identification.model.plant import ModalPlant, Mode
+from seekopt.drive.controller import Controller
+from seekopt.drive.presets import default_truth_plant, nss_disturbances
+from seekopt.design.profiles import reference_from_model, shortest_baseline
+from seekopt.drive.simulator import closed_loop_responses, simulate_2dof
 
 FS = 26400.0
 

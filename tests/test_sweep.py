@@ -1,4 +1,4 @@
-"""Tests for seekopt.sweep: grid parsing, engines (serial, process pool, Dask LocalCluster),
+"""Tests for seekopt.evaluate.sweep: grid parsing, engines (serial, process pool, Dask LocalCluster),
 determinism, failing cells, kill-and-resume, CLI errors.
 
 The machinery is tested with the ``baseline`` designer (shortest bang-bang within Imax) so
@@ -16,9 +16,9 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from seekopt.controller import Controller
-from seekopt.presets import default_truth_plant
-from seekopt.sweep import (ALL_KINDS, KINDS, TIMING_COLUMNS, TUNE_FACTORS, SweepConfig, SweepError, cell_key, compute_cell,
+from seekopt.drive.controller import Controller
+from seekopt.drive.presets import default_truth_plant
+from seekopt.evaluate.sweep import (ALL_KINDS, KINDS, TIMING_COLUMNS, TUNE_FACTORS, SweepConfig, SweepError, cell_key, compute_cell,
                            load_cells, parse_tpi, parse_tracks, run_sweep)
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -49,7 +49,7 @@ class FailingDesigner:
     """Test designer: the baseline designer, but 10-track seeks fail."""
 
     def __init__(self, plant, controller, imax, settle=0.1):
-        from seekopt.sweep import BaselineDesigner
+        from seekopt.evaluate.sweep import BaselineDesigner
         self.inner = BaselineDesigner(plant, controller, imax, settle)
 
     def design(self, tracks):
@@ -184,7 +184,7 @@ def test_other_configuration_refused_grid_change_reuses(serial, tmp_path):
 
 
 def test_cli_errors_are_one_line_exit_2(tmp_path, capsys):
-    from seekopt.cli import main
+    from seekopt.app.cli import main
     plant = tmp_path / "p.json"
     default_truth_plant().to_json(plant)
     args = ["sweep", "--plant", str(plant), "--tracks", "1,10", "--imax", "0.3", "-o", str(tmp_path / "o")]
@@ -199,9 +199,9 @@ def test_cli_errors_are_one_line_exit_2(tmp_path, capsys):
 # ------------------------------------------------------------------ kill and resume
 KILL_SCRIPT = textwrap.dedent("""
     import sys
-    from seekopt.controller import Controller
-    from seekopt.presets import default_truth_plant
-    from seekopt.sweep import SweepConfig, run_sweep
+    from seekopt.drive.controller import Controller
+    from seekopt.drive.presets import default_truth_plant
+    from seekopt.evaluate.sweep import SweepConfig, run_sweep
     cfg = SweepConfig(default_truth_plant(), Controller.nss(), [100e3, 150e3, 200e3, 300e3],
                       [1, 3, 10, 30, 100], 0.3, designer="baseline")
     run_sweep(cfg, sys.argv[1], engine="process", workers=2, progress=False, figures=False)
@@ -240,7 +240,7 @@ def test_killed_sweep_resumes_without_loss_or_recompute(tmp_path):
 # ------------------------------------------------------------------ with the optimiser
 @pytest.mark.slow
 def test_optimal_sweep_deterministic_across_engines(tmp_path):
-    pytest.importorskip("seekopt.ocp")
+    pytest.importorskip("seekopt.design.ocp")
     cfg = config(designer="ocp", tpis=[200e3, 600e3], tracks=[10, 200])
     run_sweep(cfg, tmp_path / "a", engine="serial", progress=False, figures=False)
     run_sweep(cfg, tmp_path / "b", engine="process", workers=2, progress=False, figures=False)

@@ -1,9 +1,9 @@
 """The synthetic drive."""
 import numpy as np
 
-from identification.logs import read_log, segment_seeks, write_log
-from seekopt.cli import main
-from seekopt.synth import SynthConfig, synthesize
+from identification.logs.seeklog import read_log, segment_seeks, write_log
+from seekopt.app.cli import main
+from seekopt.evaluate.synth import SynthConfig, synthesize
 
 
 def test_deterministic_for_a_seed():

@@ -1,0 +1,351 @@
+"""Rigid-body gain, bias and delay from seek segments.
+
+Two estimators:
+
+* :func:`eq8_fit` -- the paper's eq. (8) (Section 3.1)::
+
+      y(i) = sum_{j=0}^{i} sum_{k=0}^{j} ( b0 u(k) - b1 )
+
+  LS for ``(b0, b1)`` through the 2x2 normal equations ``[U] [b0, b1]^T = [...]``, applied to each
+  seek from its start to its end with the position relative to the start (the sample before the
+  first sample of the seek, where eq. (8) has ``y(-1) = 0``), normal equations pooled over the
+  seeks.  ``k0`` follows from ``b0`` (:func:`k0_from_b0`).
+
+* :func:`rigid_fit` -- the fit the robust method starts from: the ZOH double integrator with
+  fractional input delay of :mod:`identification.model.plant` (exactly how the plant is stepped),
+  per-segment initial position and velocity as linear nuisance parameters, a bias force, and the
+  delay estimated by a 1-D search.
+
+Which discretisation (ERRATA item 5)
+-----------------------------------
+The code uses the double sum for eq. (8) (the paper's method) and the ZOH of plant.py everywhere
+else.  They differ: ``sum_{j<=i} sum_{k<=j} u(k) = sum_{k<=i} (i - k + 1) u(k)``, whereas the ZOH
+double integrator of plant.py (no delay) gives ``p(i) = k0 Ts^2 sum_{k<i} (i - k - 1/2) u(k)``.
+Exactly, ``k0 Ts^2 sum_{j<=i} sum_{k<=j} u(k) = p((i + 3/2) Ts) - k0 Ts^2 u(i+1) / 8``: the double
+sum is the ZOH position one and a half samples later (one sample from including ``u(i)`` in
+``y(i)``, half a sample from the rectangle rule), with ``b0 = k0 Ts^2`` -- **not** ``k0 Ts^2 / 2``:
+for a constant ``u``, ``b0 (i+1)(i+2)/2`` must grow like ``k0 (i Ts)^2 / 2``.  After a rest-to-rest
+current the two end at the same position.  ``tests/test_rigid.py`` proves both.  The printed
+``b0 = k0 Ts^2 / 2`` (and ERRATA item 5, which endorses it) would double ``k0``; :func:`k0_from_b0`
+uses ``k0 = b0 / Ts^2`` and keeps the printed relation behind ``printed=True``.  The 1.5-sample
+advance (plus the plant's own input delay) is an unmodelled lag for eq. (8): on ZOH data with the
+benchmark's 10 us delay it biased ``k0`` by -0.9 % on short sine seeks (test) and -0.3 % on the
+synthetic drive's logs (``docs/results_identification.md``).
+
+Two further misprints in Section 3.1 are handled as follows: the cost ``J`` uses
+``sum_j sum_k 1 = (i+1)(i+2)/2`` as the regressor of ``b1`` while the printed normal equations use
+``sum_{j=0}^{i} j = i(i+1)/2``; and the printed solution vector is the LS coefficient of ``+b1``
+although eq. (8) subtracts ``b1``.  :func:`eq8_fit` uses the cost's regressor by default
+(``bias_regressor="printed"`` selects the other) and returns ``b1`` with eq. (8)'s sign, so
+``bias_a = -b1 / b0``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+
+from identification.model.plant import ModalPlant
+
+__all__ = ["double_sum", "Eq8Fit", "eq8_fit", "k0_from_b0", "SegmentProjector", "zoh_rigid_response",
+           "bias_response", "RigidFit", "rigid_fit"]
+
+
+# ------------------------------------------------------------------------------------ eq. (8)
+def double_sum(x) -> np.ndarray:
+    """``S(i) = sum_{j=0}^{i} sum_{k=0}^{j} x(k)`` (the double summation of eq. (8))."""
+    return np.cumsum(np.cumsum(np.asarray(x, dtype=float)))
+
+
+def k0_from_b0(b0: float, dt: float, printed: bool = False) -> float:
+    """Rigid-body gain ``k0`` [track/(A s^2)] from eq. (8)'s ``b0`` [track/A].
+
+    ``k0 = b0 / Ts^2`` for the double sum as written (see the module notes); ``printed=True``
+    gives the paper's printed ``k0 = 2 b0 / Ts^2``, which is twice too large.
+    """
+    return (2.0 if printed else 1.0) * b0 / dt ** 2
+
+
+@dataclass
+class Eq8Fit:
+    """Result of :func:`eq8_fit`.
+
+    ``b0`` [track/A] and ``b1`` [track] as in eq. (8); ``k0`` [track/(A s^2)] (``b0 / Ts^2``);
+    ``bias_a = -b1 / b0`` [A]; ``U`` the pooled 2x2 normal matrix and ``rhs`` its right-hand side;
+    ``residual_rms`` [track]; ``n_seeks`` and ``n_samples`` used.
+    """
+    b0: float
+    b1: float
+    k0: float
+    bias_a: float
+    U: np.ndarray
+    rhs: np.ndarray
+    residual_rms: float
+    n_seeks: int
+    n_samples: int
+
+
+def eq8_fit(current_a, position_track, segments, dt: float, bias_regressor: str = "cost") -> Eq8Fit:
+    """The paper's eq. (8) rigid-body fit, pooled over seek segments.
+
+    For each segment ``[i0, i1)`` (seek start to end): ``u(i) = current_a[i0 + i]``,
+    ``y(i) = position_track[i0 + i] - position_track[i0 - 1]`` (relative to the last sample before
+    the seek, where eq. (8) has ``y(-1) = 0``; ``position_track[0]`` if ``i0 = 0``),
+    ``i = 0..M`` with ``M = i1 - i0 - 1``;
+    regressors ``phi0(i) = sum_{j<=i} sum_{k<=j} u(k)`` and ``phi1(i) = -sum_{j<=i} sum_{k<=j} 1``
+    (``bias_regressor="printed"``: ``-sum_{j<=i} j``).  The normal equations
+    ``U [b0, b1]^T = [sum_i y phi0, sum_i y phi1]^T`` with
+    ``U11 = sum_i phi0^2``, ``U12 = U21 = sum_i phi0 phi1``, ``U22 = sum_i phi1^2`` are summed over the
+    segments and solved.
+
+    Parameters
+    ----------
+    current_a, position_track : array_like
+        Measured current [A] and head position [track] over the whole log.
+    segments : sequence of (int, int)
+        Half-open seek segments (e.g. ``(s.start, s.end)`` of :func:`identification.logs.seeklog.segment_seeks`).
+    dt : float
+        Sample period ``Ts`` [s].
+    bias_regressor : {"cost", "printed"}
+        Regressor of ``b1`` (see the module notes).
+
+    Returns
+    -------
+    Eq8Fit
+    """
+    u_all = np.asarray(current_a, dtype=float)
+    y_all = np.asarray(position_track, dtype=float)
+    U, rhs, n, used = np.zeros((2, 2)), np.zeros(2), 0, 0
+    blocks = []
+    for i0, i1 in segments:
+        if i1 - i0 < 3:
+            continue
+        u = u_all[i0:i1]
+        y = y_all[i0:i1] - y_all[max(i0 - 1, 0)]
+        i = np.arange(i1 - i0, dtype=float)
+        one = (i + 1) * (i + 2) / 2 if bias_regressor == "cost" else i * (i + 1) / 2
+        X = np.column_stack([double_sum(u), -one])
+        U += X.T @ X
+        rhs += X.T @ y
+        blocks.append((X, y))
+        n += i1 - i0
+        used += 1
+    if used == 0:
+        raise ValueError("eq8_fit: no segment with at least 3 samples")
+    s = np.sqrt(np.diag(U))
+    b = np.linalg.solve(U / np.outer(s, s), rhs / s) / s
+    # the residual from the residuals themselves: yy - 2 b.rhs + b.U.b cancels catastrophically
+    rss = sum(float(np.sum((y - X @ b) ** 2)) for X, y in blocks)
+    b0, b1 = float(b[0]), float(b[1])
+    return Eq8Fit(b0, b1, k0_from_b0(b0, dt), -b1 / b0, U, rhs, float(np.sqrt(rss / n)), used, n)
+
+
+# ------------------------------------------------------------------------------------ ZOH rigid body
+class SegmentProjector:
+    """Orthogonal projection that removes a per-segment polynomial ``p0 + v0 t (+ ...)``.
+
+    The rows are the concatenation of the index ranges ``segments`` (half-open, into the log);
+    ``t`` is the local sample index from each segment's *start* (``offsets`` shifts it when only
+    part of a segment is used, so that ``t`` still counts from the seek start).  Projecting the
+    data and every regressor removes the per-segment initial position and velocity exactly
+    (variable projection of linear nuisance parameters).
+
+    Parameters
+    ----------
+    segments : sequence of (int, int)
+    offsets : sequence of int, optional
+        Local time of each range's first row (default 0).
+    degree : int
+        Polynomial degree of the nuisance (1: initial position and velocity).
+    """
+
+    def __init__(self, segments, offsets=None, degree: int = 1):
+        segs = [(int(a), int(b)) for a, b in segments if b > a]
+        if not segs:
+            raise ValueError("SegmentProjector: no non-empty segment")
+        offsets = [0] * len(segs) if offsets is None else list(offsets)
+        self.segments = segs
+        self.lengths = np.array([b - a for a, b in segs])
+        self.rows = np.concatenate([np.arange(a, b) for a, b in segs])
+        self.seg_id = np.repeat(np.arange(len(segs)), self.lengths)
+        self.bounds = np.r_[0, np.cumsum(self.lengths)][:len(segs) + 1]
+        t = np.concatenate([np.arange(n, dtype=float) + o for n, o in zip(self.lengths, offsets)])
+        # orthonormal per-segment polynomial basis: Gram-Schmidt on 1, t, t^2 .. within each segment
+        self.degree = int(degree)
+        scale = np.repeat(np.maximum(self.lengths, 1).astype(float), self.lengths)
+        tt = t / scale
+        Q = []
+        for d in range(self.degree + 1):
+            v = tt ** d
+            for _ in range(2):                       # twice is enough (re-orthogonalisation)
+                for q in Q:
+                    v = v - q * np.add.reduceat(q * v, self.bounds[:-1])[self.seg_id]
+            nrm = np.sqrt(np.add.reduceat(v * v, self.bounds[:-1]))
+            ok = nrm > 1e-9 * np.sqrt(self.lengths)  # segments too short for this degree get 0
+            v = v * np.where(ok, 1.0 / np.where(ok, nrm, 1.0), 0.0)[self.seg_id]
+            Q.append(v)
+        self.Q = np.column_stack(Q)
+        self.t = t
+        # the projection as sparse products: coefficients S x (one row per segment and basis
+        # function), fit S^T (S x)
+        from scipy import sparse
+        w, nseg, n = self.Q.shape[1], len(segs), len(self.rows)
+        self._S = sparse.csr_matrix((self.Q.T.ravel(), (np.repeat(np.arange(w), n) * nseg + np.tile(self.seg_id, w),
+                                                        np.tile(np.arange(n), w))), shape=(w * nseg, n))
+        self._ST = self._S.T.tocsr()
+
+    @property
+    def n_rows(self) -> int:
+        return len(self.rows)
+
+    @property
+    def n_nuisance(self) -> int:
+        return int(sum(min(self.degree + 1, n) for n in self.lengths))
+
+    def take(self, x) -> np.ndarray:
+        """Rows of a log-length array (or the rows of each column of a 2-D array)."""
+        return np.asarray(x)[self.rows]
+
+    def fitted(self, x) -> np.ndarray:
+        """The per-segment polynomial LS fit of rows ``x`` (1-D, or 2-D with one column per signal)."""
+        x = np.asarray(x, dtype=float)
+        return self._ST @ (self._S @ x)
+
+    def project(self, x) -> np.ndarray:
+        """``x`` minus its per-segment polynomial fit (``x`` already restricted to the rows)."""
+        return np.asarray(x, dtype=float) - self.fitted(x)
+
+
+def _rigid_gammas(dt: float, delay_s: float):
+    dp = ModalPlant(k0=1.0, delay_s=float(delay_s)).discretize(dt)
+    return dp.m, dp.G_new[:2], dp.G_old[:2]
+
+
+def zoh_rigid_response(current_a, dt: float, delay_s: float, starts) -> np.ndarray:
+    """Unit-``k0`` rigid-body position from the measured current, restarted at each start.
+
+    The ZOH double integrator with fractional input delay of :class:`identification.model.plant.DiscretePlant`
+    (``ModalPlant(k0=1, delay_s=delay_s)``)::
+
+        v[k+1] = v[k] + Gn_v u[k-m] + Go_v u[k-m-1]
+        p[k+1] = p[k] + dt v[k] + Gn_p u[k-m] + Go_p u[k-m-1]
+
+    with ``p = v = 0`` at every index in ``starts`` (the delay line holds the measured current
+    before it; before sample 0 the current is taken as ``current_a[0]``).  Between starts the
+    response runs on; samples before the first start are zero.  Per-segment initial position and
+    velocity are left to :class:`SegmentProjector`.
+
+    ``current_a`` of shape ``(n, L)`` is a multirate current (``L`` held sub-steps per sample,
+    :meth:`identification.logs.seeklog.SeekLog.input_current`): the response is computed at ``dt / L`` and
+    sampled at the log's instants.
+
+    Returns
+    -------
+    ndarray
+        Position [track per track/(A s^2)], i.e. multiply by ``k0``.
+    """
+    u = np.asarray(current_a, dtype=float)
+    if u.ndim == 2:
+        L = u.shape[1]
+        fine = zoh_rigid_response(u.reshape(-1), dt / L, delay_s, [L * int(s) for s in starts])
+        return fine[::L]
+    n = len(u)
+    m, gn, go = _rigid_gammas(dt, delay_s)
+    pad = np.r_[np.full(m + 1, u[0]), u]
+    un = pad[1:n + 1]          # u[k - m]
+    uo = pad[:n]               # u[k - m - 1]
+    dv = gn[1] * un + go[1] * uo
+    dp_ = gn[0] * un + go[0] * uo
+    starts = np.asarray(sorted(set(int(s) for s in starts)), dtype=int)
+    seg = np.zeros(n, dtype=int)
+    seg[starts] = 1
+    seg = np.cumsum(seg)        # segment number of each sample (0: before the first start)
+
+    def restart_cumsum(x):      # y[k] = sum_{start <= j < k} x[j] within each segment
+        c = np.r_[0.0, np.cumsum(x)][:n]
+        base = np.r_[0.0, c[starts]]
+        return c - base[seg]
+
+    v = restart_cumsum(dv)
+    p = restart_cumsum(dt * v + dp_)
+    p[seg == 0] = 0.0
+    return p
+
+
+def bias_response(n: int, dt: float, starts) -> np.ndarray:
+    """Unit-``k0`` position from a unit constant force (undelayed): ``(t - t_start)^2 / 2`` [s^2]."""
+    starts = np.asarray(sorted(set(int(s) for s in starts)), dtype=int)
+    seg = np.zeros(n, dtype=int)
+    seg[starts] = 1
+    seg = np.cumsum(seg)
+    k = np.arange(n) - np.r_[0, starts][seg]
+    out = 0.5 * (k * dt) ** 2
+    out[seg == 0] = 0.0
+    return out
+
+
+@dataclass
+class RigidFit:
+    """Result of :func:`rigid_fit`: ``k0`` [track/(A s^2)], ``bias_a`` [A], ``delay_s`` [s] with
+    white-noise standard deviations ``std`` (dict), the fit residual rms [track] and the per-segment
+    initial position/velocity coefficients (orthonormal basis of :class:`SegmentProjector`)."""
+    k0: float
+    bias_a: float
+    delay_s: float
+    residual_rms: float
+    std: dict = field(default_factory=dict)
+    delay_grid: np.ndarray | None = None
+    delay_cost: np.ndarray | None = None
+
+
+def _rigid_ls(u, y, dt, delay, proj, starts):
+    R = proj.take(zoh_rigid_response(u, dt, delay, starts))
+    B = proj.take(bias_response(len(u), dt, starts))
+    X = proj.project(np.column_stack([R, B]))
+    yp = proj.project(proj.take(y))
+    s = np.linalg.norm(X, axis=0)
+    c, *_ = np.linalg.lstsq(X / s, yp, rcond=None)
+    c = c / s
+    r = yp - X @ c
+    return c, r, X
+
+
+def rigid_fit(current_a, position_track, segments, dt: float, delay_range=(0.0, 3.0), ngrid: int = 13) -> RigidFit:
+    """ZOH rigid body + bias + fractional delay, per-segment initial position/velocity projected out.
+
+    Model on each segment ``[i0, i1)`` (position in tracks)::
+
+        y(i) = k0 R_delay(i) + (k0 bias_a) (i dt)^2 / 2 + p0_s + v0_s i dt
+
+    with ``R_delay`` from :func:`zoh_rigid_response`.  ``(k0, k0 bias_a)`` by LS for each delay, the
+    delay [s] by a grid over ``delay_range`` (in samples) refined by bounded scalar minimisation.
+
+    Returns
+    -------
+    RigidFit
+    """
+    u = np.asarray(current_a, dtype=float)
+    y = np.asarray(position_track, dtype=float)
+    segments = [(a, b) for a, b in segments if b - a >= 4]
+    starts = [a for a, _ in segments]
+    proj = SegmentProjector(segments)
+
+    def cost(d_samples):
+        _, r, _ = _rigid_ls(u, y, dt, d_samples * dt, proj, starts)
+        return float(r @ r)
+
+    grid = np.linspace(delay_range[0], delay_range[1], ngrid)
+    costs = np.array([cost(g) for g in grid])
+    j = int(np.argmin(costs))
+    lo, hi = grid[max(j - 1, 0)], grid[min(j + 1, ngrid - 1)]
+    d = minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 1e-6}).x if hi > lo else lo
+    c, r, X = _rigid_ls(u, y, dt, d * dt, proj, starts)
+    dof = max(proj.n_rows - proj.n_nuisance - 2, 1)
+    s2 = float(r @ r) / dof
+    cov = np.linalg.inv(X.T @ X) * s2
+    k0 = float(c[0])
+    bias = float(c[1] / c[0])
+    sb = np.sqrt(cov[1, 1] / k0 ** 2 + bias ** 2 * cov[0, 0] / k0 ** 2)
+    return RigidFit(k0, bias, float(d * dt), float(np.sqrt(np.mean(r ** 2))),
+                    {"k0": float(np.sqrt(cov[0, 0])), "bias_a": float(sb)}, grid * dt, costs)

@@ -1,0 +1,210 @@
+"""Statistical analysis of an output-error residual (closing the loop).
+
+All pooled over the simulation windows (:class:`identification.loop.residual.Windows`),
+never across a gap: auto- and cross-correlation with coloured-signal confidence
+bands (:func:`correlations`, Ljung's ``sqrt(P/N)`` band), Welch spectra and
+coherence of residual vs current (:func:`spectra`), spindle detection and the
+synchronous average over revolutions (:func:`detect_spindle`,
+:func:`synchronous_average`) and Billings-Zhu / Billings-Voon nonlinear
+correlation tests (:func:`nonlinear_tests`).  Residuals in tracks, currents in
+A, frequencies in Hz, lags in samples.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from identification.loop.residual import Windows
+
+__all__ = ["pooled_xcorr", "CorrelationTest", "correlations", "Spectra", "spectra", "detect_spindle",
+           "synchronous_average", "nonlinear_tests"]
+
+
+def _segments(windows: Windows, *arrays):
+    """Per-window, mean-removed segments of full-length arrays."""
+    return [[x[a:b] - x[a:b].mean() for a, b in windows.bounds] for x in arrays]
+
+
+def pooled_xcorr(xs: list, ys: list, max_lag: int) -> np.ndarray:
+    """Normalised cross-correlation ``rho_xy(tau) = E[x(t) y(t - tau)]/(sx sy)`` for
+    ``tau = -max_lag..max_lag``, pooled over segments (products never cross a gap)."""
+    lags = np.arange(-max_lag, max_lag + 1)
+    acc = np.zeros(len(lags))
+    sxx = sum(float(x @ x) for x in xs)
+    syy = sum(float(y @ y) for y in ys)
+    for x, y in zip(xs, ys):
+        n = len(x)
+        for i, tau in enumerate(lags):
+            if abs(tau) < n:
+                acc[i] += x[tau:] @ y[:n - tau] if tau >= 0 else x[:n + tau] @ y[-tau:]
+    return acc / np.sqrt(max(sxx * syy, 1e-300))
+
+
+@dataclass
+class CorrelationTest:
+    """Correlations of the residual [-] with 95 % bands.
+
+    ``auto[tau]`` (tau >= 0) with the white band ``1.96/sqrt(N)``; ``cross[tau]`` =
+    rho(e(t), u(t - tau)) for tau = -M..M with Ljung's band ``1.96 sqrt(P/N)``,
+    ``P = sum_k rho_e(k) rho_u(k)`` (valid when both are coloured)."""
+
+    lags: np.ndarray
+    auto: np.ndarray
+    white_band: float
+    cross: np.ndarray
+    cross_band: float
+    n: int
+
+    @property
+    def whiteness_fraction(self) -> float:
+        """Fraction of lags 1..M outside the white band."""
+        k = self.lags > 0
+        return float(np.mean(np.abs(self.auto[k]) > self.white_band))
+
+    @property
+    def past_input_violations(self) -> np.ndarray:
+        """Lags tau >= 0 (current in the past) where ``|cross| > band``."""
+        k = self.lags >= 0
+        return self.lags[k][np.abs(self.cross[k]) > self.cross_band]
+
+
+def correlations(e_full: np.ndarray, u: np.ndarray, windows: Windows, max_lag: int = 50) -> CorrelationTest:
+    """Whiteness and residual-current cross-correlation (see :class:`CorrelationTest`)."""
+    es, us = _segments(windows, e_full, u)
+    n = windows.n_samples
+    re = pooled_xcorr(es, es, max_lag)
+    ru = pooled_xcorr(us, us, max_lag)
+    rc = pooled_xcorr(es, us, max_lag)
+    P = float(np.sum(re * ru))
+    lags = np.arange(-max_lag, max_lag + 1)
+    return CorrelationTest(lags, re, 1.96 / np.sqrt(n), rc, 1.96 * np.sqrt(max(P, 0) / n), n)
+
+
+@dataclass
+class Spectra:
+    """Welch estimates over windows: ``f`` [Hz], PSDs ``See`` [track^2/Hz], ``Suu``
+    [A^2/Hz], coherence ``coh`` [-] and its 95 % null threshold ``coh_band``."""
+
+    f: np.ndarray
+    See: np.ndarray
+    Suu: np.ndarray
+    Seu: np.ndarray
+    coh: np.ndarray
+    coh_band: float
+    n_segments: int
+
+    def coherent_peaks(self, fmin: float = 0.0, max_peaks: int = 5) -> list:
+        """``(freq_hz, coherence)`` of local maxima above the null threshold."""
+        c = self.coh
+        pk = [i for i in range(1, len(c) - 1) if c[i] >= c[i - 1] and c[i] >= c[i + 1]
+              and c[i] > self.coh_band and self.f[i] >= fmin]
+        pk.sort(key=lambda i: -c[i])
+        return [(float(self.f[i]), float(c[i])) for i in pk[:max_peaks]]
+
+
+def spectra(e_full: np.ndarray, u: np.ndarray, windows: Windows, fs: float, nperseg: int = 128) -> Spectra:
+    """Welch spectra and coherence of residual vs current, Hann segments inside windows."""
+    win = np.hanning(nperseg)
+    scale = 1.0 / (fs * (win ** 2).sum())
+    nf = nperseg // 2 + 1
+    See = np.zeros(nf); Suu = np.zeros(nf); Seu = np.zeros(nf, complex)
+    nseg = 0
+    for a, b in windows.bounds:
+        for s in range(a, b - nperseg + 1, nperseg // 2):
+            x = e_full[s:s + nperseg]; v = u[s:s + nperseg]
+            X = np.fft.rfft(win * (x - x.mean())); V = np.fft.rfft(win * (v - v.mean()))
+            See += (X * X.conj()).real; Suu += (V * V.conj()).real; Seu += X * V.conj()
+            nseg += 1
+    nseg = max(nseg, 1)
+    See, Suu, Seu = See * scale / nseg, Suu * scale / nseg, Seu * scale / nseg
+    coh = np.abs(Seu) ** 2 / np.maximum(See * Suu, 1e-300)
+    n_ind = max(nseg / 1.9, 2.0)   # 50 % overlap Hann: ~1.9 overlapped segments per independent one
+    band = 1.0 - 0.05 ** (1.0 / (n_ind - 1.0))
+    return Spectra(np.fft.rfftfreq(nperseg, 1.0 / fs), See, Suu, Seu, coh, float(band), nseg)
+
+
+def detect_spindle(e_full: np.ndarray, windows: Windows, fs: float, fmin: float = 20.0,
+                   fmax: float = 400.0, harmonics: int = 4, pad: int = 8, top: int = 1,
+                   band_hz: float = 15.0) -> list:
+    """Spindle-frequency candidates [Hz] from the residual (zero outside the windows).
+
+    Score ``S(f0) = sum_h (P(h f0) / M(h f0)) / h / sum_h (1/h)`` over ``h = 1..harmonics``,
+    ``P`` the periodogram and ``M`` its running median over ``band_hz`` (the local noise
+    level, so that the large low-frequency residual does not dominate); the ``1/h``
+    weights favour the fundamental over its sub-harmonics.  Returns the ``top`` local
+    maxima as ``[(f0, S)]``, best first (about 1 for noise)."""
+    from scipy.ndimage import median_filter
+    x = np.zeros(len(e_full))
+    idx = windows.index()
+    x[idx] = e_full[idx]
+    nfft = int(2 ** np.ceil(np.log2(len(x) * pad)))
+    P = np.abs(np.fft.rfft(x, nfft)) ** 2
+    fgrid = np.fft.rfftfreq(nfft, 1.0 / fs)
+    df = fgrid[1]
+    hi = min(len(P), int((harmonics * fmax + 2 * band_hz) / df) + 2)
+    M = median_filter(P[:hi], size=max(3, int(band_hz / df)) | 1, mode="nearest")
+    snr = P[:hi] / np.maximum(M, 1e-300)
+    cand = fgrid[(fgrid >= fmin) & (fgrid <= min(fmax, fs / 2 / harmonics))]
+    if len(cand) < 3:
+        return []
+    w = 1.0 / np.arange(1, harmonics + 1)
+    score = sum(wh * np.interp(h * cand, fgrid[:hi], snr) for h, wh in zip(range(1, harmonics + 1), w)) / w.sum()
+    pk = [i for i in range(1, len(score) - 1) if score[i] >= score[i - 1] and score[i] >= score[i + 1]]
+    pk.sort(key=lambda i: -score[i])
+    return [(float(cand[i]), float(score[i])) for i in pk[:top]]
+
+
+def synchronous_average(e_full: np.ndarray, t: np.ndarray, windows: Windows, f0: float,
+                        nbins: int | None = None, fs: float | None = None):
+    """Residual averaged over spindle revolutions, by angle.
+
+    Returns ``(phase [0, 1), mean [track], std_error [track], repeatable_fraction)``;
+    the fraction is the variance of the binned mean (minus its estimation noise) over
+    the residual variance."""
+    idx = windows.index()
+    nbins = nbins or int(min(256, max(16, round((fs or 1.0 / np.median(np.diff(t))) / f0))))
+    ph = np.mod(t[idx] * f0, 1.0)
+    k = np.minimum((ph * nbins).astype(int), nbins - 1)
+    e = e_full[idx]
+    cnt = np.bincount(k, minlength=nbins)
+    s1 = np.bincount(k, e, nbins); s2 = np.bincount(k, e * e, nbins)
+    mean = s1 / np.maximum(cnt, 1)
+    var = np.maximum(s2 / np.maximum(cnt, 1) - mean ** 2, 0)
+    se = np.sqrt(var / np.maximum(cnt, 1))
+    frac = max(float(np.var(mean) - np.mean(se ** 2)), 0.0) / max(float(np.var(e)), 1e-300)
+    return (np.arange(nbins) + 0.5) / nbins, mean, se, frac
+
+
+def nonlinear_tests(e_full: np.ndarray, u: np.ndarray, y: np.ndarray, windows: Windows,
+                    max_lag: int = 20) -> dict:
+    """Billings-Zhu and Billings-Voon correlation tests (95 % band ``1.96/sqrt(N)``).
+
+    ``y`` is taken per window minus its mean (head motion within the window), ``'``
+    denotes removal of the mean.  Returns ``{name: (max |rho| over lags, band)}`` for
+    ``BZ_ye_e2`` = rho((y e)', (e^2)'), ``BZ_ye_u2`` = rho((y e)', (u^2)'),
+    ``BV_u2_e`` = rho((u^2)', e), ``BV_u2_e2`` = rho((u^2)', e^2), ``BV_e_eu`` = rho(e, e u)
+    (lags >= 0 for the lagged argument)."""
+    segs = []
+    for a, b in windows.bounds:
+        e, v, w = e_full[a:b], u[a:b], y[a:b] - y[a:b].mean()
+        segs.append((e, v, w))
+    n = windows.n_samples
+    band = 1.96 / np.sqrt(n)
+
+    def test(fx, fy, two_sided=False):
+        xs = [fx(*s) for s in segs]; ys = [fy(*s) for s in segs]
+        mx = np.mean(np.concatenate(xs)); my = np.mean(np.concatenate(ys))
+        r = pooled_xcorr([x - mx for x in xs], [z - my for z in ys], max_lag)
+        r = r if two_sided else r[max_lag:]
+        return float(np.max(np.abs(r))), band
+
+    return {
+        "BZ_ye_e2": test(lambda e, v, w: w * e, lambda e, v, w: e * e),
+        "BZ_ye_u2": test(lambda e, v, w: w * e, lambda e, v, w: v * v),
+        "BV_u2_e": test(lambda e, v, w: e, lambda e, v, w: v * v),
+        "BV_u2_e2": test(lambda e, v, w: e * e, lambda e, v, w: v * v),
+        "BV_e_eu": test(lambda e, v, w: e, lambda e, v, w: e * v),
+    }

@@ -1,0 +1,490 @@
+"""Condensed dense QP machinery for seek design: closed-loop convolution maps and solvers.
+
+The 2DOF loop ``u = u_ff + C (r - y)`` around the linear part of a plant is linear and
+time-invariant at the servo rate, so the head position and the sub-step currents are
+convolutions of ``u_ff`` and ``r`` with the loop's impulse responses.  Those come from the
+one simulator (:func:`seekopt.drive.simulator.closed_loop_responses`); :class:`LoopMaps` turns them
+into Toeplitz rows on demand::
+
+    y(k)      = sum_j h_yu(k-j) u_ff(j) + sum_j h_yr(k-j) r(j)
+    i(k, l)   = sum_j h_iu(k-j, l) u_ff(j) + sum_j h_ir(k-j, l) r(j) + i_hold
+
+(``l`` the ``L`` current sub-steps of sample ``k``; ``i_hold = -bias_a``).
+
+Solvers take the dense problem ``min 1/2 x'Hx + g'x  s.t. lba <= A x <= uba, lbx <= x <= ubx``
+with ``H`` and ``A`` as :class:`casadi.DM` (converted once by the caller, never per solve):
+
+* :class:`ConicQP` -- ``casadi.conic`` with a QP plugin (``daqp`` default; ``qpoases``,
+  ``highs``, ``osqp``, ``proxqp``, ``qrqp`` accepted), built once for a fixed size;
+* :class:`IpoptQP` -- the same problem as an ``Opti`` + Ipopt NLP (``hessian_constant``,
+  ``jac_c_constant``, ``jac_d_constant`` = yes) exported once with ``opti.to_function``.
+
+Both count their constructions in :data:`BUILD_COUNT` (for reuse tests and studies).
+"""
+from __future__ import annotations
+
+import time
+from collections import Counter
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from seekopt.drive.simulator import closed_loop_responses
+
+__all__ = ["LoopMaps", "toeplitz_rows", "hf_guard_matrix", "QPSolution", "ConicQP", "IpoptQP",
+           "make_qp_solver", "BUILD_COUNT", "QP_PLUGINS", "dm"]
+
+#: Number of solver constructions per kind (``"conic:daqp"``, ``"ipopt"``); reuse is visible here.
+BUILD_COUNT: Counter = Counter()
+#: ``casadi.conic`` plugins the designer accepts.
+QP_PLUGINS = ("daqp", "qpoases", "highs", "osqp", "proxqp", "qrqp")
+
+
+def dm(a: np.ndarray) -> ca.DM:
+    """numpy -> casadi.DM (dense).  Slow for big arrays (~0.1 s per million entries): do it once."""
+    a = np.asarray(a, dtype=float)
+    return ca.DM(a if a.ndim == 2 else a.reshape(-1, 1))
+
+
+def toeplitz_rows(h: np.ndarray, rows: np.ndarray, ncols: int) -> np.ndarray:
+    """``T[i, j] = h[rows[i] - j]`` for ``rows[i] >= j`` else 0 (convolution rows).
+
+    ``h`` may be ``(H,)`` or ``(H, L)``; for 2-D ``h`` the result has ``len(rows) * L``
+    rows ordered ``(k, l)`` (sub-step ``l`` of sample ``rows[i]``).
+    """
+    rows = np.asarray(rows, dtype=int)
+    idx = rows[:, None] - np.arange(ncols)[None, :]
+    ok = idx >= 0
+    idx = np.where(ok, idx, 0)
+    if h.ndim == 1:
+        return np.where(ok, h[idx], 0.0)
+    L = h.shape[1]
+    out = np.where(ok[:, :, None], h[idx], 0.0)          # (rows, ncols, L)
+    return out.transpose(0, 2, 1).reshape(len(rows) * L, ncols)
+
+
+class LoopMaps:
+    """Impulse and step responses of the linear 2DOF loop of one plant (servo rate).
+
+    Parameters
+    ----------
+    plant : ModalPlant
+        Only its linear part is used (no bias, no nonlinear effects); ``hold_a = -bias_a``.
+    controller : Controller
+    horizon : int
+        Samples of response computed.
+
+    Attributes
+    ----------
+    y_u, y_r : (H,) ndarray
+        Position per unit feedforward impulse [track/A] / unit reference impulse [track/track].
+    i_u, i_r : (H, L) ndarray
+        Sub-step currents per unit impulse [A/A], [A/track].
+    s_yr, s_ir : ndarray
+        Step responses to ``r = 1`` from sample 0 (cumulative sums).
+    """
+
+    def __init__(self, plant, controller, horizon: int):
+        R = closed_loop_responses(plant, controller, int(horizon))
+        self.horizon = int(horizon)
+        self.L = int(controller.fast_multiple)
+        self.y_u, self.y_r = R["y_uff"], R["y_r"]
+        self.i_u, self.i_r = R["u_sub_uff"], R["u_sub_r"]
+        self.s_yr = np.cumsum(self.y_r)
+        self.s_ir = np.cumsum(self.i_r, axis=0)
+        self.hold_a = -float(plant.bias_a)
+        self.k0 = float(plant.k0)
+        finite = all(np.all(np.isfinite(a)) for a in (self.y_u, self.y_r, self.i_u, self.i_r))
+        if not finite or np.max(np.abs(self.y_r[-10:])) > 1e3:
+            raise ValueError("closed loop of this plant and controller is unstable")
+
+    def position_rows(self, rows, ncols):
+        """``(T_yu, T_yr, s_yr[rows])`` for samples ``rows`` and ``ncols`` input samples."""
+        rows = np.asarray(rows, dtype=int)
+        return (toeplitz_rows(self.y_u, rows, ncols), toeplitz_rows(self.y_r, rows, ncols),
+                self.s_yr[rows])
+
+    def current_rows(self, nsamples, ncols):
+        """``(T_iu, T_ir, s_ir)`` for the ``L`` sub-steps of samples ``0..nsamples-1``."""
+        rows = np.arange(int(nsamples))
+        return (toeplitz_rows(self.i_u, rows, ncols), toeplitz_rows(self.i_r, rows, ncols),
+                self.s_ir[rows].ravel())
+
+
+def hf_guard_matrix(k0: float, fs: float, L: int, nsub: int, f_lo: float, f_hi: float,
+                    gain: float = 1.0, spacing_hz: float | None = None, npoly: int = 4):
+    """Linear map from the sub-step current sequence to the residual vibration of unmodelled
+    modes in ``[f_lo, f_hi]`` [track].
+
+    A mode ``k0 g / (s^2 + w^2)`` (undamped: conservative) driven by the ZOH current ``i_m``
+    on sub-steps of ``h = 1/(L fs)`` is left vibrating with complex amplitude::
+
+        z(w) = k0 g |1 - exp(-j w h)| / w^2 * sum_m i_m exp(-j w m h)        [track]
+
+    Each frequency gives ``npoly`` rows ``Re(exp(j theta) z)`` (theta = 0, pi/npoly, ...): bounding
+    them by ``tol`` bounds ``|z| <= tol / cos(pi / (2 npoly))``.
+
+    Returns
+    -------
+    G : (nf * npoly, nsub) ndarray
+        Rows acting on the sub-step currents ``i_m`` [A], ``m < nsub``.
+    freqs : (nf,) ndarray
+    """
+    h = 1.0 / (L * fs)
+    spacing = spacing_hz or fs / 64.0
+    freqs = np.arange(f_lo, f_hi + 0.5 * spacing, spacing)
+    m = np.arange(nsub)
+    rows = []
+    for f in freqs:
+        w = 2 * np.pi * f
+        wt = k0 * gain * abs(1 - np.exp(-1j * w * h)) / w ** 2
+        e = wt * np.exp(-1j * w * m * h)
+        for th in np.arange(npoly) * np.pi / npoly:
+            rows.append((e * np.exp(1j * th)).real)
+    return np.array(rows), freqs
+
+
+@dataclass
+class QPSolution:
+    """Result of one QP solve: ``x``, multipliers, status, wall time [s]."""
+
+    x: np.ndarray
+    lam_a: np.ndarray
+    lam_x: np.ndarray
+    success: bool
+    status: str
+    solve_time_s: float
+    cpu_time_s: float
+
+    @property
+    def infeasible(self) -> bool:
+        """The solver proved the problem infeasible (daqp exit flag -1, or 'infeasible' in the status)."""
+        st = self.status.lower()
+        return (not self.success) and (st == "-1" or ("infeas" in st and "violation" not in st))
+
+
+def _nan_safe(a, n):
+    a = np.asarray(a, dtype=float).ravel()
+    return a if a.size == n else np.full(n, np.nan)
+
+
+class ConicQP:
+    """``casadi.conic`` for a dense QP of fixed size ``(n, m)``, built once and reused.
+
+    Parameters
+    ----------
+    n, m : int
+        Variables and linear constraints.
+    plugin : str
+        ``daqp`` (default), ``qpoases``, ``highs``, ``osqp``, ``proxqp``, ``qrqp``.
+    options : dict, optional
+        Plugin options (merged over quiet defaults).
+    """
+
+    def __init__(self, n: int, m: int, plugin: str = "daqp", options: dict | None = None):
+        if plugin not in QP_PLUGINS:
+            raise ValueError(f"unknown QP plugin {plugin!r} (choose from {', '.join(QP_PLUGINS)})")
+        self.n, self.m, self.plugin = int(n), int(m), plugin
+        opts = {"error_on_fail": False, "verbose": False}
+        quiet = {"qpoases": {"printLevel": "none"}, "highs": {"highs": {"output_flag": False}},
+                 "osqp": {"osqp": {"verbose": False, "eps_abs": 1e-7, "eps_rel": 1e-7, "max_iter": 50000,
+                                   "polishing": True}},
+                 "proxqp": {"proxqp": {"backend": "dense", "eps_abs": 1e-9}},
+                 "qrqp": {"print_iter": False, "print_header": False, "print_info": False},
+                 "daqp": {"daqp": {"iter_limit": 5000}}}
+        opts.update(quiet.get(plugin, {}))
+        opts.update(options or {})
+        sp = {"h": ca.Sparsity.dense(self.n, self.n), "a": ca.Sparsity.dense(self.m, self.n)}
+        self._solver = ca.conic(f"seek_qp_{plugin}", plugin, sp, opts)
+        BUILD_COUNT[f"conic:{plugin}"] += 1
+        self.name = plugin
+
+    def solve(self, H: ca.DM, g, A: ca.DM, lba, uba, lbx, ubx, x0=None, lam_a0=None, lam_x0=None) -> QPSolution:
+        """Solve with numeric data (``H``, ``A`` as DM); ``x0``/``lam_*0`` warm-start plugins that use them."""
+        args = dict(h=H, g=g, a=A, lba=lba, uba=uba, lbx=lbx, ubx=ubx)
+        if x0 is not None:
+            args["x0"] = x0
+        if lam_a0 is not None:
+            args["lam_a0"] = lam_a0
+        if lam_x0 is not None:
+            args["lam_x0"] = lam_x0
+        t0, c0 = time.perf_counter(), time.process_time()
+        res = self._solver(**args)
+        dt, dc = time.perf_counter() - t0, time.process_time() - c0
+        st = self._solver.stats()
+        x = _nan_safe(res["x"], self.n)
+        ok = bool(st.get("success", False)) and bool(np.all(np.isfinite(x)))
+        return QPSolution(x, _nan_safe(res["lam_a"], self.m), _nan_safe(res["lam_x"], self.n), ok,
+                          str(st.get("return_status", st.get("unified_return_status", "?"))), dt, dc)
+
+
+class IpoptQP:
+    """The same dense QP as an ``Opti`` problem solved by Ipopt, exported once with
+    ``opti.to_function`` (the general NLP path; QP structure declared to Ipopt)."""
+
+    def __init__(self, n: int, m: int, options: dict | None = None):
+        self.n, self.m, self.name = int(n), int(m), "ipopt"
+        opti = ca.Opti()
+        x = opti.variable(self.n)
+        H, g = opti.parameter(self.n, self.n), opti.parameter(self.n)
+        A = opti.parameter(self.m, self.n)
+        lba, uba = opti.parameter(self.m), opti.parameter(self.m)
+        lbx, ubx = opti.parameter(self.n), opti.parameter(self.n)
+        opti.minimize(0.5 * ca.bilin(H, x, x) + ca.dot(g, x))
+        opti.subject_to(opti.bounded(lba, A @ x, uba))
+        opti.subject_to(opti.bounded(lbx, x, ubx))
+        ipopt = {"print_level": 0, "sb": "yes", "hessian_constant": "yes", "jac_c_constant": "yes",
+                 "jac_d_constant": "yes", "tol": 1e-9, "max_iter": 500, "mu_strategy": "adaptive"}
+        ipopt.update(options or {})
+        opti.solver("ipopt", {"print_time": False, "error_on_fail": False}, ipopt)
+        self._f = opti.to_function("seek_qp_ipopt", [H, g, A, lba, uba, lbx, ubx, x],
+                                   [x, opti.lam_g])
+        BUILD_COUNT["ipopt"] += 1
+
+    def solve(self, H, g, A, lba, uba, lbx, ubx, x0=None, lam_a0=None, lam_x0=None) -> QPSolution:
+        lbx, ubx = np.asarray(lbx, float), np.asarray(ubx, float)
+        # Ipopt cannot take lbx == ubx as free variables cheaply; it handles fixed bounds natively.
+        x0 = np.clip(np.zeros(self.n) if x0 is None else np.asarray(x0, float), lbx, ubx)
+        lba, uba = np.asarray(lba, float), np.asarray(uba, float)
+        t0, c0 = time.perf_counter(), time.process_time()
+        try:
+            x, lam = self._f(H, g, A, lba, uba, lbx, ubx, x0)
+            st = self._f.stats()
+            status = str(st.get("return_status", "?"))
+            ok = bool(st.get("success", False))
+        except RuntimeError as exc:  # ill-posed data (e.g. lb > ub)
+            x, lam, status, ok = np.full(self.n, np.nan), np.full(2 * self.m, np.nan), str(exc)[:80], False
+        dt, dc = time.perf_counter() - t0, time.process_time() - c0
+        x = _nan_safe(x, self.n)
+        lam = np.asarray(lam, float).ravel()
+        return QPSolution(x, lam[:self.m] if lam.size >= self.m else np.full(self.m, np.nan),
+                          np.zeros(self.n), ok and bool(np.all(np.isfinite(x))), status, dt, dc)
+
+
+def make_qp_solver(n: int, m: int, solver: str = "daqp", options: dict | None = None):
+    """:class:`IpoptQP` for ``solver="ipopt"``, else :class:`ConicQP` with that plugin."""
+    return IpoptQP(n, m, options) if solver == "ipopt" else ConicQP(n, m, solver, options)
+
+
+# ---------------------------------------------------------------------------- the seek QP
+def pes_row_samples(nmax: int, horizon: int) -> np.ndarray:
+    """Samples carrying settle-band rows: every sample up to ``nmax + 32``, then every 2nd up to
+    ``nmax + 96``, every 4th up to ``nmax + 192`` and every 8th after (the slow closed-loop tail;
+    the designer re-checks every sample by simulation)."""
+    edges = [(0, nmax + 32, 1), (nmax + 32, nmax + 96, 2), (nmax + 96, nmax + 192, 4), (nmax + 192, horizon, 8)]
+    return np.concatenate([np.arange(a, min(b, horizon), s) for a, b, s in edges if a < horizon]).astype(int)
+
+
+class SeekQP:
+    """The condensed seek-design QP for seeks of at most ``nmax`` samples (one size class).
+
+    Scaled decision vector ``x = [v, q, t]`` (O(1) numbers)::
+
+        v_k = u_ff(k) / Imax,  q_k = (r(k) - K) / |K|   (k < nmax; pinned to 0 for k >= N),
+        t   = worst settle-band residual / band          (epigraph variant only)
+
+    With ``reference="model"`` (or ``"rigid"``) there is no ``q``: ``r = R u_ff`` with ``R`` the
+    Toeplitz map of the reference model's open-loop impulse response.
+
+    Rows (each scaled to O(1); ``K`` enters as ``A(K) = A0 + |K| A1`` plus K-linear offsets):
+
+    * settle band, plant ``i``, sample ``k``: ``e = (y_i(k) - K) / band`` in ``[-beta, beta]``
+      for ``k >= N`` (rows for ``k < N`` are free); epigraph variant: ``-t <= e <= t``;
+    * total current, each sub-step of ``k < nmax + 40`` (other plants of the set: ``nmax + 8``):
+      ``|i| / Imax <= gamma``;
+    * unmodelled-mode guard (nominal plant): residual of modes in ``[f_lo, f_hi]`` <= ``hf_tol band``;
+    * rigid rest-to-rest: ``M u_ff = [K, 0]`` (:func:`seekopt.design.profiles.rigid_endpoint_matrix`);
+    * optional slew ``|u_ff(k) - u_ff(k-1)| <= slew / fs``.
+
+    Objective: ``rho |D v|^2 + rho_q |D q|^2 + w_e mean_i,k>=nmax e^2 (+ w_t t^2)``.
+    ``H``, ``A0``, ``A1`` are converted to :class:`casadi.DM` once, here; the solver is built
+    once, here.
+    """
+
+    def __init__(self, maps: list, nmax: int, horizon: int, imax: float, band: float, fs: float,
+                 band_plants: list, solver, *, epigraph: bool = False, R=None, hf=None, slew=None,
+                 rho: float = 1e-2, rho_q: float = 1e-3, w_e: float = 1.0, w_t: float = 10.0,
+                 eps: float = 1e-9, current_extra: int = 40, stride: int = 1):
+        from seekopt.design.profiles import rigid_endpoint_matrix
+        t_build = time.perf_counter()
+        N, Hn, L = int(nmax), int(horizon), maps[0].L
+        self.N, self.horizon, self.imax, self.band, self.fs = N, Hn, float(imax), float(band), float(fs)
+        self.free_ref = R is None
+        self.epigraph = bool(epigraph)
+        nq = N if self.free_ref else 0
+        self.nv, self.nq, self.nt = N, nq, int(epigraph)
+        n = N + nq + self.nt
+        self.n = n
+        ks = pes_row_samples(N, Hn)
+        self.pes_k = ks
+        ncur = min(Hn, N + current_extra)
+        A0, A1, c0, c1, kinds = [], [], [], [], []    # offsets: c = c0 + K c1 (band / Imax units)
+
+        def cols(a_v, a_q):
+            out0 = np.zeros((a_v.shape[0], n)); out1 = np.zeros((a_v.shape[0], n))
+            out0[:, :N] = a_v
+            if a_q is not None:
+                out1[:, N:N + nq] = a_q
+            return out0, out1
+
+        if not self.free_ref:
+            Rfull = np.asarray(R, float)[:Hn, :N]
+        stride = max(int(stride), 1)
+        ks_other = np.unique(np.r_[ks[ks < N + 32][::stride], ks[ks >= N + 32]])   # thinned: other plants
+        for i, m in enumerate(maps):
+            ksi = ks if i == 0 else ks_other
+            Tyu, Tyr, syr = m.position_rows(ksi, N if self.free_ref else Hn)
+            if self.free_ref:
+                a0, a1 = cols(imax * Tyu / band, Tyr / band)
+                off0, off1 = np.zeros(len(ksi)), (syr - 1.0) / band
+            else:
+                a0, a1 = cols(imax * (Tyu[:, :N] + Tyr @ Rfull) / band, None)
+                off0, off1 = np.zeros(len(ksi)), -np.ones(len(ksi)) / band
+            reps = ((-1.0, "pes_hi"), (1.0, "pes_lo")) if epigraph else ((0.0, "pes"),)
+            for sgn, kind in reps:
+                b0 = a0.copy()
+                if epigraph:
+                    b0[:, -1] = sgn
+                A0.append(b0); A1.append(a1); c0.append(off0); c1.append(off1)
+                kinds += [(kind, i, int(k)) for k in ksi]
+        for i, m in enumerate(maps):   # nominal: seek + 40 samples; other plants: seek + 8 (never thinned)
+            Tiu, Tir, sir = m.current_rows(ncur if i == 0 else min(Hn, N + 8), N if self.free_ref else Hn)
+            if self.free_ref:
+                a0, a1 = cols(Tiu, Tir / imax)
+                off0, off1 = np.full(len(sir), m.hold_a / imax), sir / imax
+            else:
+                a0, a1 = cols(Tiu[:, :N] + Tir @ Rfull, None)
+                off0, off1 = np.full(Tiu.shape[0], m.hold_a / imax), np.zeros(Tiu.shape[0])
+            A0.append(a0); A1.append(a1); c0.append(off0); c1.append(off1)
+            kinds += [("cur", i, j) for j in range(a0.shape[0])]
+        if hf is not None:     # hf = (G, freqs): rows on the nominal plant's sub-step currents
+            G = hf[0]
+            m = maps[0]
+            Tiu, Tir, sir = m.current_rows(Hn, N if self.free_ref else Hn)
+            if self.free_ref:
+                a0, a1 = cols(imax * G @ Tiu / band, G @ Tir / band)
+                off0, off1 = G @ np.full(len(sir), m.hold_a) / band, G @ sir / band
+            else:
+                a0, a1 = cols(imax * G @ (Tiu[:, :N] + Tir @ Rfull) / band, None)
+                off0, off1 = G @ np.full(Tiu.shape[0], m.hold_a) / band, np.zeros(G.shape[0])
+            A0.append(a0); A1.append(a1); c0.append(off0); c1.append(off1)
+            kinds += [("hf", 0, j) for j in range(G.shape[0])]
+        M = rigid_endpoint_matrix(N, maps[0].k0, 1.0 / fs)
+        self.M = M
+        # rows scaled by the bucket's reach: s_pos = k0 Ts^2 Imax N^2 / 4, s_vel = k0 Ts^2 Imax N
+        self.s_pos = maps[0].k0 * imax * N * N / (4 * fs * fs)
+        self.s_vel = maps[0].k0 * imax * N / (fs * fs)
+        a0 = np.zeros((2, n)); a0[0, :N] = M[0] * imax / self.s_pos; a0[1, :N] = M[1] * imax / self.s_vel
+        A0.append(a0); A1.append(np.zeros((2, n))); c0.append(np.zeros(2)); c1.append(np.zeros(2))
+        kinds += [("rigid", 0, 0), ("rigid", 0, 1)]
+        if slew is not None:
+            D = np.eye(N + 1, N) - np.eye(N + 1, N, -1)
+            a0 = np.zeros((N + 1, n)); a0[:, :N] = D
+            A0.append(a0); A1.append(np.zeros((N + 1, n))); c0.append(np.zeros(N + 1)); c1.append(np.zeros(N + 1))
+            kinds += [("slew", 0, j) for j in range(N + 1)]
+        self.kind = np.array([k[0] for k in kinds])
+        self.plant_idx = np.array([k[1] for k in kinds])
+        self.sample = np.array([k[2] for k in kinds])
+        self.A0, self.A1 = np.vstack(A0), np.vstack(A1)
+        self.c0, self.c1 = np.concatenate(c0), np.concatenate(c1)
+        self.m = self.A0.shape[0]
+        self.band_plants = set(band_plants)
+        self.slew = slew
+        # ---- objective: smoothness, reference smoothness, tail energy (k >= nmax), epigraph
+        D = np.eye(N) - np.eye(N, k=-1)
+        P = np.zeros((n, n))
+        P[:N, :N] += 2 * rho * D.T @ D
+        if nq:
+            P[N:N + nq, N:N + nq] += 2 * rho_q * D.T @ D
+        if epigraph:
+            P[-1, -1] += 2 * w_t
+        P += 2 * eps * np.eye(n)
+        kt = np.arange(N, Hn)
+        E0, E1, e0, e1 = [], [], [], []
+        for m in maps:
+            Tyu, Tyr, syr = m.position_rows(kt, N if self.free_ref else Hn)
+            a0, a1 = (cols(imax * Tyu / band, Tyr / band) if self.free_ref
+                      else cols(imax * (Tyu[:, :N] + Tyr @ Rfull) / band, None))
+            E0.append(a0); E1.append(a1)
+            e1.append((syr - 1.0) / band if self.free_ref else -np.ones(len(kt)) / band)
+        E0, E1, e1 = np.vstack(E0), np.vstack(E1), np.concatenate(e1)
+        w = 2 * w_e / E0.shape[0]
+        self._P0, self._P1, self._P2 = P + w * E0.T @ E0, w * (E0.T @ E1 + E1.T @ E0), w * E1.T @ E1
+        self._q1, self._q2 = w * E0.T @ e1, w * E1.T @ e1   # g = K q1 + K|K| q2
+        self._dm = {k: dm(v) for k, v in (("A0", self.A0), ("A1", self.A1), ("P0", self._P0),
+                                          ("P1", self._P1), ("P2", self._P2))}
+        self.solver = solver(n, self.m)
+        self.build_time_s = time.perf_counter() - t_build
+
+    # ------------------------------------------------------------------ per design
+    def data(self, K: float, nseek: int, beta: float | None, gamma: float, hf_tol: float | None,
+             slew_a_per_s: float | None = None):
+        """Numeric QP data for a seek of ``K`` tracks in ``nseek`` samples.
+
+        ``beta``: settle-band fraction on ``k >= nseek`` (None: band rows free); ``gamma``: current
+        fraction of ``Imax``; ``hf_tol``: guard tolerance in bands.
+        """
+        aK, sK = abs(K), np.sign(K)
+        N, n = self.N, self.n
+        if not 0 < nseek <= N:
+            raise ValueError(f"nseek {nseek} outside 1..{N}")
+        H = self._dm["P0"] + aK * self._dm["P1"] + aK * aK * self._dm["P2"]
+        g = K * self._q1 + K * aK * self._q2
+        A = self._dm["A0"] + aK * self._dm["A1"]
+        c = self.c0 + K * self.c1
+        lba = np.full(self.m, -np.inf); uba = np.full(self.m, np.inf)
+        kind, smp, pl = self.kind, self.sample, self.plant_idx
+        active = np.isin(kind, ("pes", "pes_hi", "pes_lo")) & (smp >= nseek) & np.isin(pl, list(self.band_plants))
+        if self.epigraph:
+            hi, lo = active & (kind == "pes_hi"), active & (kind == "pes_lo")
+            uba[hi] = -c[hi]; lba[lo] = -c[lo]
+        elif beta is not None:
+            lba[active] = -beta - c[active]; uba[active] = beta - c[active]
+        cur = kind == "cur"
+        lba[cur] = -gamma - c[cur]; uba[cur] = gamma - c[cur]
+        if hf_tol is not None:
+            hfm = kind == "hf"
+            lba[hfm] = -hf_tol - c[hfm]; uba[hfm] = hf_tol - c[hfm]
+        rig = kind == "rigid"
+        lba[rig] = uba[rig] = np.array([K / self.s_pos, 0.0])
+        if self.slew is not None and slew_a_per_s is not None:
+            sl = kind == "slew"
+            lim = slew_a_per_s / (self.fs * self.imax)
+            lba[sl] = -lim; uba[sl] = lim
+        lbx = np.zeros(n); ubx = np.zeros(n)
+        lbx[:nseek], ubx[:nseek] = -1.0, 1.0
+        if self.nq:
+            lbx[N:N + nseek], ubx[N:N + nseek] = -2.0, 2.0
+        if self.nt:
+            lbx[-1], ubx[-1] = 0.0, np.inf
+        return H, g, A, lba, uba, lbx, ubx
+
+    def violation(self, x: np.ndarray, K: float, lba, uba, lbx, ubx) -> float:
+        """Largest constraint violation of ``x`` relative to the size of the terms summed in each
+        row (``max(1, sum_j |a_ij x_j|)``: the cancellation level) -- re-checks a solver's answer."""
+        if not np.all(np.isfinite(x)):
+            return float("inf")
+        A = self.A0 + abs(K) * self.A1
+        ax = A @ x
+        scale = np.maximum(1.0, np.abs(A) @ np.abs(x))
+        v = np.concatenate([(lba - ax) / scale, (ax - uba) / scale, lbx - x, x - ubx])
+        v = v[np.isfinite(v)]
+        return float(max(np.max(v), 0.0)) if v.size else 0.0
+
+    def unpack(self, x: np.ndarray, K: float, nseek: int):
+        """``(u_ff [A], r [track, relative] or None)`` over ``nseek`` samples."""
+        u = self.imax * x[:nseek]
+        r = K + abs(K) * x[self.N:self.N + nseek] if self.nq else None
+        return u, r
+
+    def residual(self, x: np.ndarray, K: float, nseek: int, plants=None) -> float:
+        """Worst ``|PES| / band`` over the band rows ``k >= nseek`` of ``plants`` (default all)."""
+        aK = abs(K)
+        e = self.A0 @ x + aK * (self.A1 @ x) + self.c0 + K * self.c1
+        sel = np.isin(self.kind, ("pes", "pes_hi")) & (self.sample >= nseek)
+        if plants is not None:
+            sel &= np.isin(self.plant_idx, list(plants))
+        if self.epigraph:
+            e = e - x[-1] * np.where(self.kind == "pes_hi", -1.0, 0.0)
+        return float(np.max(np.abs(e[sel]))) if np.any(sel) else 0.0
