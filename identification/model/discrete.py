@@ -106,16 +106,19 @@ class DiscretePlant:
 
     # ------------------------------------------------------------- the maps
     def command(self, u, position, ops=NUMPY):
-        """Command [A] entering the delay line: ``u`` through the ``input`` effects in order."""
+        """Command [A] entering the delay line: ``u`` through the ``input`` effects in order.
+
+        (On numbers the hooks are called without ``ops``, so that an effect written for numbers
+        only, ``input_map(u, position)``, still steps.)"""
         for e in self._inputs:
-            u = e.input_map(u, position, ops)
+            u = e.input_map(u, position) if ops is NUMPY else e.input_map(u, position, ops)
         return u
 
     def net_force(self, position, velocity, ops=NUMPY):
         """Undelayed current-equivalent force [A]: ``force0`` + the ``force`` effects."""
         f = self.force0
         for e in self._forces:
-            f = f + e.force(position, velocity, ops)
+            f = f + (e.force(position, velocity) if ops is NUMPY else e.force(position, velocity, ops))
         return f
 
     def _c(self, ops):
@@ -161,7 +164,7 @@ class DiscretePlant:
         ``C x`` plus the ``output`` effects (run-out)."""
         y = ops.dot((self._consts.get(ops.name) or self._c(ops))[4], x)
         for e in self._outputs:
-            y = y + e.output(t, ops)
+            y = y + (e.output(t) if ops is NUMPY else e.output(t, ops))
         return y
 
     def rest_state(self, position: float = 0.0, velocity: float = 0.0, current: float | None = None):
