@@ -121,6 +121,13 @@ def test_smoothed_mode_converges(name):
     assert np.max(np.abs(numpy_ops(sm).clip(x, -0.3, 0.3) - np.clip(x, -0.3, 0.3))) <= 0.01 + 1e-15
 
 
+def test_smoothing_settings_are_data():
+    sm = SmoothingSettings(friction_velocity_tps=50.0, saturation_width_a=0.01)
+    assert SmoothingSettings.from_dict(sm.to_dict()) == sm and not sm.exact and SmoothingSettings().exact
+    with pytest.raises(ValueError, match="saturation_width_a"):
+        SmoothingSettings(saturation_width_a=-1.0)
+
+
 def test_smoothed_maps_are_differentiable_for_ipopt():
     """Smoothed: CasADi's derivative equals a central difference everywhere, corners included."""
     sm = SmoothingSettings(friction_velocity_tps=50.0, saturation_width_a=0.01, table_width_track=20.0)
