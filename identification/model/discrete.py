@@ -146,6 +146,10 @@ class DiscretePlant:
         Returns
         -------
         (x_next, hist_next)
+            Same types as ``x``, ``hist`` (numpy 1-D arrays; CasADi ``(n, 1)``, ``(m + 1, 1)``).
+            ``hist_next = [c[k], hist[0], ..., hist[m-1]]``; ``x_next = Phi x + Gamma_new c[k-m]
+            + Gamma_old c[k-m-1] + Gamma_f f(x)`` with ``c[k-m] = hist_next[m]``,
+            ``c[k-m-1] = hist[m]``.
         """
         Phi, G_d, G_f, Gf0, _ = self._consts.get(ops.name) or self._c(ops)
         cmd = self.command(u, x[0], ops) if self._inputs else u
