@@ -27,8 +27,8 @@ def _input_errors() -> tuple:
     errs = [UsageError, LogError, PlantError, ControllerError, ProfileError, FileNotFoundError,
             IsADirectoryError, PermissionError]
     try:
-        from seekopt.design.ocp import DesignInfeasible
-        errs.append(DesignInfeasible)
+        from seekopt.design.problem import ProblemError     # DesignInfeasible is one
+        errs.append(ProblemError)
     except ImportError:
         pass
     try:
@@ -131,9 +131,14 @@ def cmd_identify(args) -> int:
 
 
 def cmd_design(args) -> int:
-    """``seekopt design``: minimum seek-settle-time profile -> Profile CSV (see :mod:`seekopt.design.ocp`)."""
+    """``seekopt design``: minimum seek-settle-time profile -> Profile CSV (see :mod:`seekopt.design.designer`).
+
+    The problem is checked before any QP is built (closed-loop stability, a seek beyond the design
+    horizon at ``--imax``): one line, exit 2."""
     import math
-    from seekopt.design.ocp import DesignError, RobustSpec, SeekDesigner
+    from seekopt.design.designer import DesignError, SeekDesigner
+    from seekopt.design.problem import ProblemError, SeekProblem
+    from seekopt.design.robust import RobustSpec
     plant, controller = _load_plant(args.plant), _load_controller(args.controller)
     for name, v in (("--imax", args.imax), ("--settle", args.settle)):
         if not (math.isfinite(v) and v > 0):
@@ -145,7 +150,12 @@ def cmd_design(args) -> int:
     except ValueError as exc:
         raise UsageError(f"--robust: {exc}") from None
     try:
-        res = SeekDesigner(plant, controller, args.imax, args.settle, robust).design(args.tracks)
+        designer = SeekDesigner(SeekProblem(plant, controller, args.imax, args.settle, robust=robust))
+        designer.check_seek(args.tracks)            # closed loop and impossible seeks: before any QP is built
+    except ProblemError as exc:
+        raise UsageError(f"{args.plant}: {exc}") from None
+    try:
+        res = designer.design(args.tracks)
     except DesignError as exc:
         print(f"seekopt design: solver failure: {str(exc).splitlines()[0]}", file=sys.stderr)
         return 1
@@ -153,9 +163,10 @@ def cmd_design(args) -> int:
     prof.meta.update(plant_file=Path(args.plant).name, controller_name=controller.name)
     prof.to_csv(args.output)
     m = res.metrics
+    extra = f", {res.fallback_solves} by the fallback solver" if res.fallback_solves else ""
     print(f"wrote {args.output}: {prof.n} samples; {args.tracks:g} tracks, seek {m.seek_time_s * 1e3:.3f} ms, "
           f"seek-settle {m.settle_time_s * 1e3:.3f} ms ({m.ratio_tbb:.2f} T_bb) on the design plant, "
-          f"peak current {m.peak_current_a:.3f} A; {res.n_solves} QPs ({res.solver}) in {res.solve_time_s:.3f} s")
+          f"peak current {m.peak_current_a:.3f} A; {res.n_solves} QPs ({res.solver}{extra}) in {res.solve_time_s:.3f} s")
     return 0
 
 
