@@ -38,7 +38,7 @@ import numpy as np
 
 from identification.model.plant import ModalPlant
 
-from seekopt.design import qp as _qp
+from seekopt.design import guard as _guard, qp as _qp
 from seekopt.design.metrics import SeekMetrics, evaluate_profile, worst_case
 from seekopt.design.problem import ProblemError, SeekProblem, check_closed_loop
 from seekopt.design.profiles import Profile, finish_profile, reference_from_model, rigid_endpoint_matrix, t_bang_bang
@@ -132,6 +132,8 @@ class SeekDesigner:
         self.solver_name = p.solver.qp_solver
         self.beta, self.gamma = p.band_margin, p.current_margin
         self.hf_guard, self.hf_gain, self.hf_tol = p.hf_guard, p.hf_gain, p.hf_tol
+        self.guard_bands = _guard.problem_bands(p)     # Nyquist, controller notches, blind bands
+        self.guard_curve = _guard.plant_gain_curve(p.plant)   # what the identification could have seen
         self.slew = p.slew_a_per_s
         self.check_robust = p.check_robust
         self.max_samples = int(p.solver.max_samples)
@@ -176,11 +178,10 @@ class SeekDesigner:
                 imp = np.zeros(H); imp[0] = 1.0
                 hm = reference_from_model(self._reference_model(), imp, self.fs, H)
                 R = _qp.toeplitz_rows(hm, np.arange(H), H)
-            hf = None
-            if self.hf_guard:
-                lo, hi = self.hf_guard
-                hf = _qp.hf_guard_matrix(self.plant.k0, self.fs, self.L, H * self.L, lo * self.fs, hi * self.fs,
-                                         self.hf_gain, spacing_hz=max(self.fs / (2 * nmax), 50.0))
+            dfg = _guard.grid_spacing(self.fs, nmax)
+            hf = _guard.guard_rows(self.guard_bands, self.plant.k0, self.fs, self.L, H * self.L, spacing_hz=dfg,
+                                   extra_hz=_guard.loop_peaks(maps[0], self.guard_bands, self.fs, dfg),
+                                   curve=self.guard_curve)
             band_plants = range(len(self.plants)) if self.objective_kind == "worst" else [0]
             s = self.settings
             self._qps[key] = _qp.SeekQP(
@@ -203,7 +204,7 @@ class SeekDesigner:
 
     # ------------------------------------------------------------------ solving
     def _solve(self, qp: _qp.SeekQP, K, n, beta, stats: _Stats, warm=None, epigraph=False):
-        hf_tol = self.hf_tol if self.hf_guard else None
+        hf_tol = self.hf_tol if self.guard_bands else None
         data = qp.data(K, n, None if epigraph else beta, self.gamma, hf_tol, self.slew)
         tol = self.settings.violation_tol
 
