@@ -218,7 +218,8 @@ def identify(log: SeekLog, method: str = "robust", **options) -> Identification:
         starting ``stage_history`` (4096) samples before its first seek), ``periodic`` ("auto",
         None or a period in samples: repeatable run-out), ``periodic_harmonics`` (10),
         ``cov`` ("newey-west" or "cluster": see :func:`identification.estimate.gains.sandwich_cov`),
-        ``nw_lags`` (32: Newey-West lags).
+        ``nw_lags`` (32: Newey-West lags), ``blind`` (True: write the bands where a mode would have
+        escaped detection into ``plant.meta``, :func:`identification.estimate.blind.blind_meta`).
 
     Returns
     -------
@@ -234,7 +235,7 @@ def identify(log: SeekLog, method: str = "robust", **options) -> Identification:
     fs = log.sample_rate_hz
     opts = dict(holdout_every=5, freq_range=(100.0, 0.47 * fs), max_modes=12, ar_order=32, t_min=5.0,
                 scan=True, max_nfev=25, final_nfev=10, stage_rows=60_000, stage_history=4096, periodic="auto",
-                periodic_harmonics=10, nw_lags=32, cov="newey-west", prony_order=8)
+                periodic_harmonics=10, nw_lags=32, cov="newey-west", prony_order=8, blind=True)
     unknown = set(options) - set(opts)
     if unknown:
         raise TypeError(f"identify: unknown option(s) {sorted(unknown)}")
@@ -259,6 +260,12 @@ def identify(log: SeekLog, method: str = "robust", **options) -> Identification:
                              samples_per_s=log.n / timing["total"] if timing["total"] > 0 else float("inf"))
     fit = None if math.isnan(ident.fit_percent) else round(ident.fit_percent, 3)
     ident.plant.meta.update(method=method, log=log.source or "<arrays>", heldout_fit_percent=fit)
+    if opts["blind"] and method == "robust":     # what the log could not show (identification.estimate.blind)
+        from identification.estimate.blind import blind_meta
+        t2 = time.perf_counter()
+        ident.plant.meta.update(blind_meta(log, ident.plant, t_min=opts["t_min"], freq_range=opts["freq_range"],
+                                           runout=ident.diagnostics.get("runout")))
+        timing["blind"] = time.perf_counter() - t2
     return ident
 
 

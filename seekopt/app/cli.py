@@ -86,13 +86,50 @@ def cmd_synth(args) -> int:
     return 0
 
 
+def _identify_outputs(logs, output):
+    """Output path per log: ``-o`` as given for one log; for several logs ``-o`` is a folder (``<stem>.json``
+    in it) or a pattern with ``{stem}``."""
+    if not output:
+        return [None] * len(logs)
+    if len(logs) == 1:
+        return [output]
+    if "{stem}" in output:
+        outs = [output.format(stem=Path(x).stem) for x in logs]
+    else:
+        if Path(output).suffix.lower() == ".json":
+            raise UsageError(f"-o {output}: several logs need a folder or a pattern with {{stem}}, not one file")
+        outs = [str(Path(output) / f"{Path(x).stem}.json") for x in logs]
+    if len(set(outs)) != len(outs):
+        raise UsageError(f"-o {output}: two logs would write the same plant file (same file stem)")
+    return outs
+
+
 def cmd_identify(args) -> int:
-    """``seekopt identify LOG [-o plant.json] [--method robust|paper] [--figures DIR]``: identify the
-    modal plant, print the modes with one-standard-deviation uncertainties, k0, bias, delay and the
-    held-out fit; a bad log raises LogError (one line, exit 2 via :func:`main`)."""
-    from identification.estimate.identify import identify
+    """``seekopt identify LOG [LOG ...] [-o plant.json | -o DIR] [--method robust|paper] [--figures DIR]``:
+    identify the modal plant of each log (several logs of one drive -- temperatures, heads, zones --
+    give a family of plants), print the modes with one-standard-deviation uncertainties, k0, bias,
+    delay, the held-out fit and the bands where a mode would have escaped detection; a bad log raises
+    LogError (one line, exit 2 via :func:`main`) before anything is identified."""
     from identification.logs.seeklog import read_log
-    log = read_log(args.log)
+    logs = list(args.log) if isinstance(args.log, (list, tuple)) else [args.log]
+    outs = _identify_outputs(logs, args.output)
+    loaded = [read_log(x) for x in logs]          # every log checked before the long work
+    plants = []
+    for path, log, out in zip(logs, loaded, outs):
+        plants.append(_identify_one(args, path, log, out, args.figures if len(logs) == 1 else
+                                    (str(Path(args.figures) / Path(path).stem) if args.figures else None)))
+    if len(plants) > 1:
+        from seekopt.design.family import family_spread
+        sp = family_spread(plants[0], plants[1:])
+        print(f"family of {len(plants)} plants, relative to {Path(logs[0]).name}:")
+        for path, (t, z, g, d) in zip(logs[1:], sp["members"]):
+            print(f"  {Path(path).name}: frequencies x{1 + t:.4f}, damping x{1 + z:.3f}, gain (k0) x{1 + g:.4f}, "
+                  f"delay {d * 1e6:+.3f} us")
+    return 0
+
+
+def _identify_one(args, path, log, output, figures):
+    from identification.estimate.identify import identify
     res = identify(log, method=args.method)
     p, sd = res.plant, res.plant.std
 
@@ -100,7 +137,7 @@ def cmd_identify(args) -> int:
         s = (std or {}).get(key)
         return f"{value:{fmt}} ± {s:.2g}" if s is not None and s == s else f"{value:{fmt}}"
     d = res.diagnostics
-    print(f"{args.log}: {log.n} samples at {log.sample_rate_hz:g} Hz, {d.get('n_seeks')} seeks "
+    print(f"{path}: {log.n} samples at {log.sample_rate_hz:g} Hz, {d.get('n_seeks')} seeks "
           f"({d.get('n_fit_seeks')} fitted, {d.get('n_heldout_seeks')} held out); method {res.method}")
     print(f"  k0    = {pm(p.k0, 'k0', sd, '.6g')} track/(A s^2)")
     print(f"  bias  = {pm(p.bias_a * 1e3, 'bias_a', {k: v * 1e3 for k, v in sd.items()}, '.4f')} mA")
@@ -120,53 +157,109 @@ def cmd_identify(args) -> int:
                   "     mode table above is not affected; see docs/results_identification.md)")
     else:
         print("  held-out fit: n/a (too few seeks to hold any out)")
-    if args.output:
-        p.to_json(args.output)
-        print(f"wrote {args.output}")
-    if args.figures:
+    blind = p.meta.get("blind_bands")
+    if blind is not None:
+        det = p.meta.get("blind_detect", {})
+        txt = "; ".join(f"{b['lo_hz']:.0f}-{b['hi_hz']:.0f} Hz ({b['reason']}"
+                        + (f", up to g {b['min_detectable_gain']:.2g})" if b.get("min_detectable_gain") else ")")
+                        for b in blind)
+        print(f"  blind (a mode of gain {det.get('gain', float('nan')):g} would escape detection): {txt or 'none'}")
+    if output:
+        Path(output).parent.mkdir(parents=True, exist_ok=True)
+        p.to_json(output)
+        print(f"wrote {output}")
+    if figures:
         from identification.estimate.figures import plot_identification
-        for path in plot_identification(log, res, args.figures):
-            print(f"wrote {path}")
-    return 0
+        for fig in plot_identification(log, res, figures):
+            print(f"wrote {fig}")
+    return p
+
+
+def _plant_family(paths):
+    """``--plant`` given once or more: ``(nominal, [other members], names)``."""
+    paths = list(paths) if isinstance(paths, (list, tuple)) else [paths]
+    plants = [_load_plant(p) for p in paths]
+    for p, path in zip(plants, paths):
+        p.meta.setdefault("family_name", Path(path).stem)
+    return plants[0], plants[1:], [Path(p).name for p in paths]
+
+
+def _robust_choice(args, nominal=None):
+    """The design's uncertainty from ``--drift`` (physical drift, repeatable) or ``--robust``: a
+    :class:`~seekopt.design.family.Drift`, a :class:`~seekopt.design.robust.RobustSpec` or None."""
+    from seekopt.design.family import Drift, DriftError
+    from seekopt.design.robust import RobustSpec
+    drift = getattr(args, "drift", None) or []
+    robust = getattr(args, "robust", None)
+    if drift and robust not in (None, "default"):
+        raise UsageError("give --drift (drift in physical terms) or --robust (per-mode box), not both")
+    try:
+        if drift:
+            d = Drift.merged(drift)
+            if nominal is not None:
+                d.check_modes(nominal)
+            return d
+        if robust in (None, "default"):
+            return Drift()                          # ranges from the data (reported std, family spread)
+        return None if str(robust).lower() == "none" else RobustSpec.from_string(robust)
+    except DriftError as exc:
+        raise UsageError(f"--drift: {exc}") from None
+    except ValueError as exc:
+        raise UsageError(f"--robust: {exc}") from None
+
+
+def _print_predictions(res, names) -> None:
+    """Predicted seek-settle times (nominal, each family member, worst over the set) and the guard."""
+    pred, g = res.prediction, res.guard
+    if pred is not None:
+        ms = lambda m: f"{m.settle_time_s * 1e3:.3f} ms ({m.ratio_tbb:.2f} T_bb)"     # noqa: E731
+        for lab, m in pred.members():
+            i = 0 if lab == "nominal" else int(lab.split()[1].rstrip(":"))
+            print(f"  predicted on {names[i] if i < len(names) else lab}: {ms(m)}")
+        print(f"  predicted worst over the {len(pred.labels)}-plant set: {ms(pred.worst_metrics)} on "
+              f"'{pred.labels[pred.worst]}'; binding plant: '{pred.labels[pred.binding]}'")
+    if g is not None:
+        print(f"  unmodelled-mode guard: worst residual {g.worst_band:.3f} band at {g.worst_hz:.0f} Hz "
+              f"({g.worst_reason}); bands " + ", ".join(str(b) for b, _ in g.per_band))
 
 
 def cmd_design(args) -> int:
     """``seekopt design``: minimum seek-settle-time profile -> Profile CSV (see :mod:`seekopt.design.designer`).
 
-    The problem is checked before any QP is built (closed-loop stability, a seek beyond the design
-    horizon at ``--imax``): one line, exit 2."""
+    ``--plant`` once, or once per member of a family (the first is the nominal plant; the profile holds
+    the band on every member); ``--drift`` states the drift in physical terms (default: from the data).
+    The problem is checked before any QP is built (closed-loop stability of every plant of the set, a
+    seek beyond the design horizon at ``--imax``): one line, exit 2."""
     import math
     from seekopt.design.designer import DesignError, SeekDesigner
     from seekopt.design.problem import ProblemError, SeekProblem
-    from seekopt.design.robust import RobustSpec
-    plant, controller = _load_plant(args.plant), _load_controller(args.controller)
+    plant, family, names = _plant_family(args.plant)
+    controller = _load_controller(args.controller)
     for name, v in (("--imax", args.imax), ("--settle", args.settle)):
         if not (math.isfinite(v) and v > 0):
             raise UsageError(f"{name} must be a positive number (got {v})")
     if not math.isfinite(args.tracks) or args.tracks == 0:
         raise UsageError(f"--tracks must be a non-zero number (got {args.tracks})")
+    robust = _robust_choice(args, plant)
     try:
-        robust = None if str(args.robust).lower() == "none" else RobustSpec.from_string(args.robust)
-    except ValueError as exc:
-        raise UsageError(f"--robust: {exc}") from None
-    try:
-        designer = SeekDesigner(SeekProblem(plant, controller, args.imax, args.settle, robust=robust))
+        designer = SeekDesigner(SeekProblem(plant, controller, args.imax, args.settle, robust=robust, family=family))
         designer.check_seek(args.tracks)            # closed loop and impossible seeks: before any QP is built
     except ProblemError as exc:
-        raise UsageError(f"{args.plant}: {exc}") from None
+        raise UsageError(f"{', '.join(names)}: {exc}") from None
     try:
         res = designer.design(args.tracks)
     except DesignError as exc:
         print(f"seekopt design: solver failure: {str(exc).splitlines()[0]}", file=sys.stderr)
         return 1
     prof = res.profile
-    prof.meta.update(plant_file=Path(args.plant).name, controller_name=controller.name)
+    prof.meta.update(plant_file=";".join(names), controller_name=controller.name)
     prof.to_csv(args.output)
     m = res.metrics
     extra = f", {res.fallback_solves} by the fallback solver" if res.fallback_solves else ""
     print(f"wrote {args.output}: {prof.n} samples; {args.tracks:g} tracks, seek {m.seek_time_s * 1e3:.3f} ms, "
           f"seek-settle {m.settle_time_s * 1e3:.3f} ms ({m.ratio_tbb:.2f} T_bb) on the design plant, "
           f"peak current {m.peak_current_a:.3f} A; {res.n_solves} QPs ({res.solver}{extra}) in {res.solve_time_s:.3f} s")
+    _print_predictions(res, names)
     return 0
 
 
@@ -267,23 +360,27 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--truth", help="also write the truth plant JSON here")
     s.set_defaults(func=cmd_synth)
 
-    s = sub.add_parser("identify", help="identify the modal plant from a seek log")
-    s.add_argument("log")
-    s.add_argument("-o", "--output", help="plant JSON")
+    s = sub.add_parser("identify", help="identify the modal plant from a seek log (several logs: a family)")
+    s.add_argument("log", nargs="+", help="seek log(s) of one drive (temperatures, heads, zones)")
+    s.add_argument("-o", "--output", help="plant JSON (several logs: a folder, or a pattern with {stem})")
     s.add_argument("--method", choices=["robust", "paper"], default="robust")
     s.add_argument("--figures", help="folder for figures")
     s.set_defaults(func=cmd_identify)
 
     s = sub.add_parser("design", help="design an optimal seek profile")
-    s.add_argument("--plant", required=True)
+    s.add_argument("--plant", required=True, action="append",
+                   help="plant JSON; repeat for a family of plants of one drive (the first is nominal)")
     s.add_argument("--controller")
     s.add_argument("--tracks", type=float, required=True)
     s.add_argument("--imax", type=float, required=True)
     s.add_argument("--settle", type=float, default=0.1, help="settle band [track]")
-    s.add_argument("--robust", nargs="?", const="default", default="default",
-                   help="robust design set (default: RobustSpec() -- seek-induced modes +-5 %%, others +-1 %%, "
-                        "zeta +-30 %%, gain +-8 %%, delay +-1 us); e.g. freq=5,ofreq=1,zeta=30,gain=8,delay=1e-6,n=15 "
-                        "(percent / s); 'none' for a nominal design")
+    s.add_argument("--drift", action="append", default=[],
+                   help="drift in physical terms, e.g. temp=±4%%,zeta=±20%%,gain=±5%%,delay=±1us, per mode "
+                        "f1738=±5%%, f1738.zeta=±30%% (repeatable); unstated ranges come from the data (reported "
+                        "std, the family's spread; seek-induced modes ±5%%)")
+    s.add_argument("--robust", nargs="?", const="default", default=None,
+                   help="per-mode box instead of --drift (RobustSpec: freq=5,ofreq=1,zeta=30,gain=8,delay=1e-6,n=15, "
+                        "percent / s); 'none' for a nominal design (family members still held)")
     s.add_argument("-o", "--output", required=True, help="profile CSV")
     s.set_defaults(func=cmd_design)
 

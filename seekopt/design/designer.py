@@ -39,6 +39,8 @@ import numpy as np
 from identification.model.plant import ModalPlant
 
 from seekopt.design import guard as _guard, qp as _qp
+from seekopt.design.family import SetPrediction, predict_on_set, scale_feedforward_maps
+from seekopt.design.guard import GuardReport
 from seekopt.design.metrics import SeekMetrics, evaluate_profile, worst_case
 from seekopt.design.problem import ProblemError, SeekProblem, check_closed_loop
 from seekopt.design.profiles import Profile, finish_profile, reference_from_model, rigid_endpoint_matrix, t_bang_bang
@@ -61,7 +63,11 @@ class DesignResult:
 
     ``metrics`` are measured by :func:`seekopt.design.metrics.evaluate_profile` on the design plant
     (the full plant, effects included); ``worst_metrics`` the worst case over the robust set (when
-    checked).  ``solve_time_s`` sums the QP solves of this design; ``objective`` is
+    checked).  ``prediction`` holds the profile's seek-settle time on every plant of the set (nominal,
+    family members, drift vertices: :class:`seekopt.design.family.SetPrediction`, worst and binding
+    plant) and ``guard`` the worst residual it leaves in the guarded unmodelled modes
+    (:class:`seekopt.design.guard.GuardReport`); both are also in the profile's metadata.
+    ``solve_time_s`` sums the QP solves of this design; ``objective`` is
     ``"min_settle/<worst|mean>"`` or ``"min_residual/<worst|mean>"``.  ``fallback_solves`` counts the
     QPs a fallback solver answered after the primary failed without proof; ``unresolved_solves``
     the QPs no solver decided (skipped).
@@ -81,6 +87,8 @@ class DesignResult:
     build_time_s: float = 0.0
     fallback_solves: int = 0
     unresolved_solves: int = 0
+    prediction: SetPrediction | None = None
+    guard: GuardReport | None = None
 
 
 class _Stats:
@@ -160,7 +168,8 @@ class SeekDesigner:
     def _loop_maps(self, horizon: int) -> list:
         if self._maps is None or self._maps_h < horizon:
             h = max(horizon, 2 * self._maps_h)
-            self._maps = [_qp.LoopMaps(p, self.controller, h) for p in self.plants]
+            # a plant of the set whose gain differs plays the profile through its drive's gain calibration
+            self._maps = [scale_feedforward_maps(_qp.LoopMaps(p, self.controller, h), p) for p in self.plants]
             self._maps_h = h
             self.map_builds += 1
         return self._maps
@@ -346,6 +355,7 @@ class SeekDesigner:
         if np.max(np.abs(M @ u - [K, 0.0])) > 1e-6 or not np.all(np.isfinite(u)):
             raise DesignError(f"design misses rest at {K:g} tracks")
         meta = {"plant_hash": self.plant.hash(), "controller_hash": self.controller.hash(),
+                **({"family_hashes": ";".join(p.hash() for p in self.problem.family)} if self.problem.family else {}),
                 "design_objective": objective, "solver": self.solver_name, "reference": self.reference,
                 "robust": self.robust.to_string() if self.robust else "none",
                 "band_margin": self.beta, "current_margin": self.gamma, "design_settle_samples": N}
@@ -362,17 +372,25 @@ class SeekDesigner:
             raise DesignError(f"design exceeds Imax in simulation ({metrics.peak_current_a:.4g} A)")
         if strict and not metrics.settle_time_s * self.fs <= N + 1 + 1e-9:
             raise DesignError(f"design does not settle by sample {N} in simulation")
-        worst = None
-        if self.check_robust and len(self.plants) > 1:
-            worst = worst_case([metrics] + [evaluate_profile(p, self.controller, prof, settle=self.settle,
-                                                             k0_for_tbb=self.plant.k0) for p in self.plants[1:]])
+        worst, pred = None, None
+        if len(self.plants) > 1:        # honest predictions: every plant of the set, by the one simulator
+            pred = predict_on_set(self.plants, self.controller, prof, self.settle, self.plant.k0, first=metrics)
+            prof.meta.update(pred.to_meta())
+            if self.check_robust:
+                worst = worst_case(pred.metrics)
+        guard = None
+        if self.guard_bands:
+            guard = _guard.guard_report(self.plant, self.controller, prof, self.guard_bands, self.settle,
+                                        curve=self.guard_curve)
+            prof.meta.update(guard.to_meta())
         prof.meta["design_status"] = "verified"
         return DesignResult(prof, metrics, "verified", stats.t, sol.solver or self.solver_name, objective,
                             settle_samples=N, n_solves=stats.n,
                             residual_band=qp.residual(sol.x, K, N) * 1.0, worst_metrics=worst,
                             qp_status=stats.status,
                             build_time_s=sum(q.build_time_s for q in self._qps.values()),
-                            fallback_solves=stats.fallback, unresolved_solves=len(stats.unresolved))
+                            fallback_solves=stats.fallback, unresolved_solves=len(stats.unresolved),
+                            prediction=pred, guard=guard)
 
 
 def design_seek(plant: ModalPlant, controller, tracks: float, imax: float, settle: float = 0.1,

@@ -6,6 +6,17 @@ gain (torque constant over mass) moves a few percent, its delay by a fraction of
 seek-induced modes (flex cable, coil) move on their own with head position.  Logs of one drive taken
 at several temperatures, heads or zones identify to a **family** of plants.
 
+Gain and the drive's feedforward calibration.  A profile is a current; played uncorrected on a plant
+with 5 % more gain it moves the head 5 % too far (10 tracks at K = 200, measured 9 T_bb for the
+optimal profile and for the sine alike; 2 % already 6 T_bb).  Drives therefore scale their seek
+feedforward by their own gain estimate (seek-gain / torque-constant calibration), and so does this
+model: a plant of the set whose gain differs from the design plant's plays the profile's current
+scaled by ``plant.meta["ff_scale"]`` = design gain / its gain (:func:`feedforward_scale`,
+:func:`played_on`; the closed-loop maps of the design are scaled the same way,
+:func:`scale_feedforward_maps`).  What the gain drift still changes is the loop gain.  The
+calibration's own error is the uncompensated ``ffgain`` range (default: ``n_sigma`` standard
+deviations of the identified ``k0``).
+
 :class:`Drift` states the drift in those physical terms (``temp=+-4%,zeta=+-20%,gain=+-5%,delay=+-1us``,
 per-mode ranges ``f1738=+-5%``, ``f1738.zeta=+-30%``); what it does not state comes from the data
 (:meth:`Drift.ranges`): every parameter's range is at least ``n_sigma`` of the standard deviation
@@ -18,7 +29,8 @@ corners of the correlated (common) drifts -- a common frequency scale is one par
 mode, so temperature, damping scale, gain and delay give at most 16 corners -- and a few rows of a
 strength-2 orthogonal array over the independent per-mode ranges (each mode's frequency, damping and
 gain at +- its range; the residual vibration is linear in the gains and its worst case over a box
-sits on vertices).  Each plant carries a label (``plant.meta["set_label"]``) so a design can say
+sits on vertices).  Each plant carries a label (``plant.meta["set_label", "label_set", "SetPrediction", "predict_on_set",
+           "feedforward_scale", "calibrated", "played_on", "scale_feedforward_maps"]``) so a design can say
 which plant of the set binds.
 """
 from __future__ import annotations
@@ -32,7 +44,8 @@ import numpy as np
 
 from identification.model.plant import ModalPlant, Mode
 
-__all__ = ["DriftError", "Drift", "DriftRanges", "family_spread", "drift_set", "match_modes", "set_label"]
+__all__ = ["DriftError", "Drift", "DriftRanges", "ModeRange", "family_spread", "drift_set", "drifted", "match_modes",
+           "set_label"]
 
 
 class DriftError(ValueError):
@@ -90,8 +103,12 @@ class Drift:
     zeta_pct : float or None
         Common scale of every damping ratio [%] (with temperature).  None: from the data.
     gain_pct : float or None
-        Drive gain ``k0`` (the whole plant with it) [%].  None: from the data (``n_sigma`` std of
-        ``k0``, the family's spread).
+        Drive gain ``k0`` (the whole plant with it) [%], compensated in the feedforward by the drive's
+        gain calibration (see the module notes): it changes the loop gain.  None: from the data (the
+        family's spread; 0 for a single plant).
+    ffgain_pct : float or None
+        Error of that calibration [%]: the feedforward is off by this much, uncompensated.  None:
+        ``n_sigma`` std of the identified ``k0``.
     delay_s : float or None
         Delay half-width [s].  None: from the data.
     seek_pct : float
@@ -122,6 +139,7 @@ class Drift:
     delay_s: float | None = None
     seek_pct: float = 5.0
     modes: dict = field(default_factory=dict)
+    ffgain_pct: float | None = None
     n_sigma: float = 3.0
     n_samples: int = 7
     nyquist_guard: float = 0.9
@@ -129,7 +147,7 @@ class Drift:
     seed: int = 0
 
     _KEYS = {"temp": "temp_pct", "freq": "temp_pct", "zeta": "zeta_pct", "damping": "zeta_pct",
-             "gain": "gain_pct", "k0": "gain_pct", "delay": "delay_s", "seek": "seek_pct",
+             "gain": "gain_pct", "k0": "gain_pct", "ffgain": "ffgain_pct", "delay": "delay_s", "seek": "seek_pct",
              "sigma": "n_sigma", "n": "n_samples", "objective": "objective", "seed": "seed",
              "nyq": "nyquist_guard"}
 
@@ -137,7 +155,7 @@ class Drift:
         if self.objective not in ("worst", "mean"):
             raise DriftError(f"drift objective must be 'worst' or 'mean', not {self.objective!r}")
         self.modes = {float(k): (v if isinstance(v, ModeRange) else ModeRange(**v)) for k, v in (self.modes or {}).items()}
-        vals = [self.temp_pct, self.zeta_pct, self.gain_pct, self.delay_s, self.seek_pct, self.n_sigma,
+        vals = [self.temp_pct, self.zeta_pct, self.gain_pct, self.ffgain_pct, self.delay_s, self.seek_pct, self.n_sigma,
                 self.nyquist_guard] + [x for r in self.modes.values() for x in (r.freq_pct, r.zeta_pct, r.gain_pct)]
         if any(v is not None and (not math.isfinite(v) or v < 0) for v in vals) or self.n_samples < 0:
             raise DriftError("drift ranges must be finite and >= 0")
@@ -146,7 +164,8 @@ class Drift:
     @classmethod
     def from_string(cls, text: str | None) -> "Drift":
         """``"temp=±4%,zeta=±20%,gain=±5%,delay=±1us,seek=±5%,f1738=±5%,f1738.zeta=±30%,sigma=3"``
-        (``+-`` or ``±`` or nothing before the number; % for relative, s/ms/us/ns for the delay).
+        (``+-`` or ``±`` or nothing before the number; % for relative, s/ms/us/ns for the delay;
+        ``data`` for a common range taken from the data).
         ``""``, ``"default"`` or None: everything from the data (:class:`Drift` defaults)."""
         kw, modes = {}, {}
         for item in filter(None, (text or "").replace(" ", "").split(",")):
@@ -164,7 +183,9 @@ class Drift:
                 raise DriftError(f"drift {text!r}: unknown item {k!r} (keys: {', '.join(sorted(cls._KEYS))}, "
                                  f"f<Hz>[.zeta|.gain])")
             name = cls._KEYS[k]
-            if name == "objective":
+            if v == "data" and name in ("temp_pct", "zeta_pct", "gain_pct", "ffgain_pct", "delay_s"):
+                kw[name] = None                     # from the data (the default)
+            elif name == "objective":
                 kw[name] = v
             elif name in ("n_samples", "seed"):
                 try:
@@ -191,7 +212,7 @@ class Drift:
         def p(v, unit="%"):
             return "data" if v is None else (f"±{v * 1e6:g}us" if unit == "s" else f"±{v:g}%")
         parts = [f"temp={p(self.temp_pct)}", f"zeta={p(self.zeta_pct)}", f"gain={p(self.gain_pct)}",
-                 f"delay={p(self.delay_s, 's')}", f"seek=±{self.seek_pct:g}%"]
+                 f"ffgain={p(self.ffgain_pct)}", f"delay={p(self.delay_s, 's')}", f"seek=±{self.seek_pct:g}%"]
         for f0, r in sorted(self.modes.items()):
             for what in ("freq", "zeta", "gain"):
                 v = getattr(r, f"{what}_pct")
@@ -204,7 +225,7 @@ class Drift:
 
     def to_dict(self) -> dict:
         return {"kind": "drift", "temp_pct": self.temp_pct, "zeta_pct": self.zeta_pct, "gain_pct": self.gain_pct,
-                "delay_s": self.delay_s, "seek_pct": self.seek_pct,
+                "ffgain_pct": self.ffgain_pct, "delay_s": self.delay_s, "seek_pct": self.seek_pct,
                 "modes": {str(k): vars(v).copy() for k, v in self.modes.items()}, "n_sigma": self.n_sigma,
                 "n_samples": self.n_samples, "nyquist_guard": self.nyquist_guard, "objective": self.objective,
                 "seed": self.seed}
@@ -234,7 +255,10 @@ class Drift:
             src[key] = "none" if key in ("temp", "zeta") else "std"
             return 0.0
         temp, zeta = common(self.temp_pct, "temp"), common(self.zeta_pct, "zeta")
-        gain = max(common(self.gain_pct, "gain"), ns * float(nominal.std.get("k0", 0.0)) / nominal.k0)
+        gain = common(self.gain_pct, "gain")
+        src["ffgain"] = "stated" if self.ffgain_pct is not None else "std"
+        ffgain = (self.ffgain_pct / 100.0 if self.ffgain_pct is not None
+                  else ns * float(nominal.std.get("k0", 0.0)) / nominal.k0)
         delay = max(common(self.delay_s, "delay"), ns * float(nominal.std.get("delay_s", 0.0)))
         df, dz, dg = [], [], []
         resid = spread["modes"] if spread is not None else None
@@ -253,7 +277,7 @@ class Drift:
                 if v is not None:
                     lst[:] = [v / 100.0]          # the user knows better: the stated range replaces the data's
             df.append(max(fr)); dz.append(max(zr)); dg.append(max(gr))
-        return DriftRanges(temp, zeta, gain, delay, np.array(df), np.array(dz), np.array(dg), src)
+        return DriftRanges(temp, zeta, gain, delay, np.array(df), np.array(dz), np.array(dg), src, ffgain)
 
     def _user_range(self, mode: Mode) -> ModeRange:
         best = None
@@ -276,8 +300,9 @@ class Drift:
 
 @dataclass
 class DriftRanges:
-    """Half-widths actually used: common ``temp``, ``zeta``, ``gain`` [fraction], ``delay`` [s]; per mode
-    ``df``, ``dz``, ``dg`` [fraction]; ``source`` says where each common range came from."""
+    """Half-widths actually used: common ``temp``, ``zeta``, ``gain`` (compensated), ``ffgain``
+    (feedforward calibration error) [fraction], ``delay`` [s]; per mode ``df``, ``dz``, ``dg``
+    [fraction]; ``source`` says where each common range came from."""
 
     temp: float
     zeta: float
@@ -287,18 +312,21 @@ class DriftRanges:
     dz: np.ndarray
     dg: np.ndarray
     source: dict
+    ffgain: float = 0.0
 
     def describe(self) -> str:
         return (f"temp ±{100 * self.temp:.3g}% ({self.source.get('temp')}), zeta ±{100 * self.zeta:.3g}% "
-                f"({self.source.get('zeta')}), gain ±{100 * self.gain:.3g}%, delay ±{self.delay * 1e6:.3g} us; "
-                f"per mode freq ±{100 * np.max(self.df, initial=0):.3g}% max")
+                f"({self.source.get('zeta')}), gain ±{100 * self.gain:.3g}% ({self.source.get('gain')}), "
+                f"feedforward gain ±{100 * self.ffgain:.3g}% ({self.source.get('ffgain')}), delay "
+                f"±{self.delay * 1e6:.3g} us; per mode freq ±{100 * np.max(self.df, initial=0):.3g}% max")
 
 
-def match_modes(a: ModalPlant, b: ModalPlant, tol: float = 0.15) -> list:
+def match_modes(a: ModalPlant, b: ModalPlant, tol: float = 0.15, scale: float = 1.0) -> list:
     """Index pairs ``(i, j)``: mode ``i`` of ``a`` and mode ``j`` of ``b``, nearest in log frequency
-    within ``tol`` (relative) and one-to-one (greedy by distance)."""
-    cand = sorted((abs(math.log(mb.freq_hz / ma.freq_hz)), i, j) for i, ma in enumerate(a.modes)
-                  for j, mb in enumerate(b.modes) if abs(mb.freq_hz / ma.freq_hz - 1) <= tol)
+    after scaling ``a``'s frequencies by ``scale``, within ``tol`` (relative), one-to-one (greedy by
+    distance)."""
+    cand = sorted((abs(math.log(mb.freq_hz / (scale * ma.freq_hz))), i, j) for i, ma in enumerate(a.modes)
+                  for j, mb in enumerate(b.modes) if abs(mb.freq_hz / (scale * ma.freq_hz) - 1) <= tol)
     used_a, used_b, out = set(), set(), []
     for _, i, j in cand:
         if i not in used_a and j not in used_b:
@@ -306,19 +334,42 @@ def match_modes(a: ModalPlant, b: ModalPlant, tol: float = 0.15) -> list:
     return sorted(out)
 
 
+def _member(p: ModalPlant, k: int, design_k0: float) -> ModalPlant:
+    """Family member ``k``: labelled, and played with its drive's gain calibration (:func:`calibrated`)."""
+    meta = dict(p.meta or {})
+    meta["set_label"] = f"member {k}" + (f": {meta['family_name']}" if meta.get("family_name") else "")
+    meta["ff_scale"] = float(design_k0) / float(p.k0)
+    return p.copy(meta=meta)
+
+
+def label_set(plants: list, family=()) -> list:
+    """Label a plant set built without :class:`Drift` (nominal, ``RobustSpec`` vertices) and append the
+    family members ("nominal", "vertex 1", ..., "member 1: <name>", ...)."""
+    out = []
+    for i, p in enumerate(plants):
+        meta = dict(p.meta or {})
+        meta["set_label"] = "nominal" if i == 0 else f"vertex {i}"
+        out.append(p.copy(meta=meta))
+    return out + [_member(p, k, plants[0].k0) for k, p in enumerate(family, 1)]
+
+
 def family_spread(nominal: ModalPlant, family) -> dict:
     """Spread of a family of plants about the nominal one.
 
-    For each member: the common frequency scale (median of the matched modes' log frequency ratios,
-    weighted by nothing: temperature moves every resonance), the common damping scale (median log
-    ratio), the gain ``k0`` ratio and the delay difference; then each mode's own deviation beyond the
-    common scales.  Returns half-widths: ``{"temp", "zeta", "gain"}`` [fraction], ``"delay"`` [s] and
+    For each member: the common frequency scale (median of the matched modes' log frequency ratios:
+    temperature moves every resonance; modes matched within 15 %, then again within 5 % of that
+    scale), the common damping scale (median log ratio), the gain ``k0`` ratio and the delay
+    difference; then each matched mode's own deviation beyond the common scales (a mode one member
+    lacks or has extra adds nothing: the member itself is in the set).  Returns half-widths: ``{"temp", "zeta", "gain"}`` [fraction], ``"delay"`` [s] and
     ``"modes"`` (per nominal mode ``(df, dz, dg)`` [fraction]) -- the largest over the members --
     plus ``"members"`` (per member ``(temp, zeta, gain, delay)``)."""
     out = {"temp": 0.0, "zeta": 0.0, "gain": 0.0, "delay": 0.0,
            "modes": [[0.0, 0.0, 0.0] for _ in nominal.modes], "members": []}
     for p in family:
-        pairs = match_modes(nominal, p)
+        pairs = match_modes(nominal, p)             # first pass: within 15 %, for the common scale
+        lf = np.array([math.log(p.modes[j].freq_hz / nominal.modes[i].freq_hz) for i, j in pairs])
+        if lf.size:                                 # second pass: within 5 % of the common scale
+            pairs = match_modes(nominal, p, tol=0.05, scale=math.exp(float(np.median(lf))))
         lf = np.array([math.log(p.modes[j].freq_hz / nominal.modes[i].freq_hz) for i, j in pairs])
         lz = np.array([math.log(max(p.modes[j].zeta, 1e-9) / max(nominal.modes[i].zeta, 1e-9)) for i, j in pairs])
         sf = float(np.median(lf)) if lf.size else 0.0
@@ -339,15 +390,70 @@ def family_spread(nominal: ModalPlant, family) -> dict:
     return out
 
 
-def _vary(nominal: ModalPlant, label: str, temp=0.0, zeta=0.0, gain=0.0, delay=0.0, sf=None, sz=None, sg=None):
+def drifted(plant: ModalPlant, temp: float = 0.0, zeta: float = 0.0, gain: float = 0.0, delay_s: float = 0.0,
+            label: str | None = None) -> ModalPlant:
+    """``plant`` drifted in physical terms: every mode frequency x ``(1 + temp)``, every damping ratio
+    x ``(1 + zeta)``, ``k0`` x ``(1 + gain)`` (fractions), delay + ``delay_s`` [s].  (A plant, as a truth
+    is: no feedforward scale.)"""
+    p = _vary(plant, label or f"temp{temp:+.3g} zeta{zeta:+.3g} gain{gain:+.3g}", temp, zeta, gain, delay_s)
+    p.meta.pop("ff_scale", None)
+    return p
+
+
+def feedforward_scale(plant: ModalPlant) -> float:
+    """Factor the drive applies to a profile's current on ``plant`` (its gain calibration; 1 if unset)."""
+    return float((plant.meta or {}).get("ff_scale", 1.0))
+
+
+def calibrated(member: ModalPlant, design_k0: float, gain_estimate: float | None = None) -> ModalPlant:
+    """``member`` with the feedforward scale its drive applies: design gain / its gain estimate
+    (default its own ``k0``: a member identified from its own log knows its gain)."""
+    meta = dict(member.meta or {})
+    meta["ff_scale"] = float(design_k0) / float(gain_estimate or member.k0)
+    return member.copy(meta=meta)
+
+
+def played_on(profile, plant: ModalPlant):
+    """The profile as the drive plays it on ``plant``: current x :func:`feedforward_scale` (the
+    reference is unchanged)."""
+    s = feedforward_scale(plant)
+    if s == 1.0:
+        return profile
+    from seekopt.design.profiles import Profile
+    return Profile(np.asarray(profile.current_a) * s, profile.reference_track, profile.sample_rate_hz, profile.tracks,
+                   profile.imax_a, profile.settle_track, profile.kind, profile.seek_samples,
+                   dict(profile.meta, ff_scale=round(s, 6)))
+
+
+def scale_feedforward_maps(maps, plant: ModalPlant):
+    """Scale the feedforward columns of ``maps`` (:class:`seekopt.design.qp.LoopMaps` of ``plant``) by the
+    plant's :func:`feedforward_scale` (in place; returns ``maps``)."""
+    s = feedforward_scale(plant)
+    if s != 1.0:
+        maps.y_u = maps.y_u * s
+        maps.i_u = maps.i_u * s
+    return maps
+
+
+def _vary(nominal: ModalPlant, label: str, temp=0.0, zeta=0.0, gain=0.0, delay=0.0, sf=None, sz=None, sg=None,
+          ffgain=0.0):
+    """A vertex: drifted plant; its gain drift ``gain`` compensated by the drive's feedforward calibration,
+    ``ffgain`` the calibration's error (``meta["ff_scale"] = (1 + ffgain) / (1 + gain)``)."""
     n = len(nominal.modes)
     sf = np.zeros(n) if sf is None else sf
     sz = np.zeros(n) if sz is None else sz
     sg = np.zeros(n) if sg is None else sg
-    modes = [Mode(m.freq_hz * (1 + temp) * (1 + a), m.zeta * (1 + zeta) * (1 + b), m.gain * (1 + c))
-             for m, a, b, c in zip(nominal.modes, sf, sz, sg)]
+    # damping: the common scale as stated (x0.8 / x1.2), each mode's own range multiplicatively
+    # (x(1 + dz) or /(1 + dz): never negative however wide the data makes it)
+    modes = [Mode(m.freq_hz * (1 + temp) * (1 + a), m.zeta * max(1 + zeta, 0.1) * (1 + abs(b)) ** np.sign(b),
+                  m.gain * (1 + c), m.std) for m, a, b, c in zip(nominal.modes, sf, sz, sg)]
     meta = dict(nominal.meta or {})
     meta["set_label"] = label
+    scale = (1 + ffgain) / (1 + gain)
+    if scale != 1.0:
+        meta["ff_scale"] = scale
+    else:
+        meta.pop("ff_scale", None)
     return nominal.copy(modes=modes, k0=nominal.k0 * (1 + gain), delay_s=max(0.0, nominal.delay_s + delay), meta=meta)
 
 
@@ -371,14 +477,17 @@ def drift_set(nominal: ModalPlant, family, drift: Drift) -> list:
     rng_ = drift.ranges(nominal, family)
     nom = _vary(nominal, "nominal")
     out = [nom]
-    for k, p in enumerate(family, 1):
-        meta = dict(p.meta or {})
-        meta["set_label"] = f"member {k}" + (f": {meta['family_name']}" if meta.get("family_name") else "")
-        out.append(p.copy(meta=meta))
-    names = ("temp", "zeta", "gain", "delay")
-    widths = (rng_.temp, rng_.zeta, rng_.gain, rng_.delay)
-    active = [(nm, w) for nm, w in zip(names, widths) if w > 0]
-    for signs in itertools.product((1, -1), repeat=len(active)):
+    out += [_member(p, k, nominal.k0) for k, p in enumerate(family, 1)]
+    names = ("temp", "zeta", "gain", "ffgain", "delay")
+    widths = (rng_.temp, rng_.zeta, rng_.gain, rng_.ffgain, rng_.delay)
+    # ranges too small to change a seek (a 3-sigma k0 of 0.005 %, a delay of 0.1 % of a sample) add no vertex
+    floor = (1e-4, 1e-3, 1e-3, 1e-3, 1e-3 / (nominal.sample_rate_hz or 1e4))
+    active = [(nm, w) for nm, w, lo in zip(names, widths, floor) if w >= lo]
+    if len(active) <= 4:                 # full factorial of the common drifts (at most 16 corners)
+        sign_rows = list(itertools.product((1, -1), repeat=len(active)))
+    else:                                # 2^(5-1) fraction, resolution V: the fifth sign = product of four
+        sign_rows = [r + (int(np.prod(r)),) for r in itertools.product((1, -1), repeat=4)]
+    for signs in sign_rows:
         kw = {nm: s * w for (nm, w), s in zip(active, signs)}
         label = " ".join(f"{nm}{'+' if s > 0 else '-'}{w * 1e6:g}us" if nm == "delay" else
                          f"{nm}{'+' if s > 0 else '-'}{100 * w:.3g}%" for (nm, w), s in zip(active, signs))
@@ -406,3 +515,61 @@ def drift_set(nominal: ModalPlant, family, drift: Drift) -> list:
         if h not in seen:
             seen.add(h); uniq.append(p)
     return uniq
+
+
+@dataclass
+class SetPrediction:
+    """A profile's predicted seek-settle times on every plant of a design's set.
+
+    Attributes
+    ----------
+    labels : list of str
+        ``set_label`` of each plant (nominal first).
+    metrics : list of SeekMetrics
+        Measured by the one simulator on each plant (effects included).
+    worst : int
+        Index of the plant that settles last (ties: the larger residual after the seek).
+    binding : int
+        Index of the plant closest to the settle band after the seek (largest peak ``|PES|`` from the
+        end of the seek on): the plant whose band constraint binds the design.
+    """
+
+    labels: list
+    metrics: list
+    worst: int
+    binding: int
+
+    @property
+    def nominal(self):
+        return self.metrics[0]
+
+    @property
+    def worst_metrics(self):
+        return self.metrics[self.worst]
+
+    def members(self) -> list:
+        """``(label, metrics)`` of the nominal plant and the family members."""
+        return [(lab, m) for lab, m in zip(self.labels, self.metrics) if lab == "nominal" or lab.startswith("member")]
+
+    def to_meta(self) -> dict:
+        ms = lambda m: round(m.settle_time_s * 1e3, 4)     # noqa: E731
+        return {"predicted_settle_nominal_ms": ms(self.nominal),
+                "predicted_settle_worst_ms": ms(self.worst_metrics),
+                "predicted_worst_plant": self.labels[self.worst],
+                "predicted_binding_plant": self.labels[self.binding],
+                "predicted_settle_members_ms": ";".join(f"{lab}={ms(m)}" for lab, m in self.members()),
+                "robust_set_size": len(self.labels)}
+
+
+def predict_on_set(plants: list, controller, profile, settle: float, k0_for_tbb: float | None = None,
+                   first=None) -> SetPrediction:
+    """Play ``profile`` on every plant of ``plants`` (:func:`seekopt.design.metrics.evaluate_profile`, the
+    current scaled by each plant's feedforward calibration, :func:`played_on`); ``first`` reuses the
+    metrics already measured on ``plants[0]``."""
+    from seekopt.design.metrics import evaluate_profile
+    ms = [first if (i == 0 and first is not None) else
+          evaluate_profile(p, controller, played_on(profile, p), settle=settle, k0_for_tbb=k0_for_tbb)
+          for i, p in enumerate(plants)]
+    worst = max(range(len(ms)), key=lambda i: (ms[i].settle_time_s, ms[i].peak_pes_after_track))
+    binding = max(range(len(ms)), key=lambda i: ms[i].peak_pes_after_track)
+    return SetPrediction([set_label(p) for p in plants], ms, worst, binding)

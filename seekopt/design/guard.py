@@ -84,13 +84,13 @@ def _section_groups(controller):
     return groups
 
 
-def _notches_of(f: np.ndarray, g: np.ndarray, depth_db: float, edge_db: float) -> list:
+def _notches_of(f: np.ndarray, g: np.ndarray, depth_db: float, edge_db: float, top_edge: bool = True) -> list:
     """Index ranges ``(j0, j1)`` of the notches of the dB response ``g`` on the log grid ``f``."""
     lf = np.log(f)
     octave = math.log(2.0)
     out = []
     n = len(f)
-    for i in range(1, n):
+    for i in range(1, n if top_edge else n - 1):
         if not (g[i] < g[i - 1] and (i == n - 1 or g[i] <= g[i + 1])):
             continue                      # interior minima, and the top edge (a zero at the group's Nyquist)
         left = np.nonzero((lf >= lf[i] - octave) & (lf <= lf[i]))[0]
@@ -124,7 +124,8 @@ def controller_notches(controller, depth_db: float = 6.0, edge_db: float = 3.0, 
     (the group's trend: integral action, lead, roll-off); a minimum at least ``depth_db`` below that
     line is a notch, and its band is where the response stays at least ``edge_db`` below the line.
     A zero on the unit circle (e.g. of a multirate averaging filter) is a notch of unbounded depth,
-    also at the top edge of the grid.
+    also at the top edge of a multirate group's grid (the PES-rate group's roll-off towards ``fs / 2``
+    is left to :func:`nyquist_band`).
 
     Returns
     -------
@@ -137,16 +138,23 @@ def controller_notches(controller, depth_db: float = 6.0, edge_db: float = 3.0, 
         f = np.geomspace(f_min_hz or fs / 100.0, 0.5 * m * fs * (1 - 1e-5), int(n))
         h = type(controller)(f"rate {m}", fs, secs).freqresp(f)     # this group alone, each section at m fs
         g = 20 * np.log10(np.maximum(np.abs(h), 1e-300))
-        out += [GuardBand(float(f[a]), float(f[b]), "notch", gain) for a, b in _notches_of(f, g, depth_db, edge_db)]
+        # a multirate section's zero at its own Nyquist counts; the PES-rate part's roll-off towards
+        # fs / 2 is the Nyquist band's business (nyquist_band)
+        out += [GuardBand(float(f[a]), float(f[b]), "notch", gain)
+                for a, b in _notches_of(f, g, depth_db, edge_db, top_edge=m > 1)]
     return merge_bands(out)
 
 
 def plant_blind_bands(plant, gain_cap: float = 1.0) -> list:
-    """The identification's blind bands, ``plant.meta["blind_bands"]`` (a list of dicts with
-    ``lo_hz``, ``hi_hz``, ``reason`` and ``min_detectable_gain``): the gain guarded is the gain a mode
-    could have there and still escape detection, at most ``gain_cap``."""
+    """The identification's low-excitation blind bands, ``plant.meta["blind_bands"]`` (a list of dicts
+    with ``lo_hz``, ``hi_hz``, ``reason`` and ``min_detectable_gain``): the gain guarded is the gain a
+    mode could have there and still escape detection, at most ``gain_cap``.  The band above the
+    identification's range is left to the Nyquist band (:func:`nyquist_band`), which states how far
+    above Nyquist modes are guarded."""
     out = []
     for d in (getattr(plant, "meta", {}) or {}).get("blind_bands", []) or []:
+        if str(d.get("reason", "")).startswith("above"):
+            continue                      # near and above Nyquist: the Nyquist band states its own range
         try:
             lo, hi = float(d["lo_hz"]), float(d["hi_hz"])
         except (KeyError, TypeError, ValueError):

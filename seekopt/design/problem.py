@@ -193,11 +193,12 @@ class SeekProblem:
     def plants(self) -> list:
         """The design's plant set: nominal first, then the family members and the robust set's vertices
         (a :class:`~seekopt.design.family.Drift` places the members itself)."""
+        from seekopt.design.family import label_set
         if self.robust is None:
-            return [self.plant] + self.family
+            return label_set([self.plant], self.family)
         if getattr(self.robust, "to_dict", lambda: {})().get("kind") == "drift":
             return self.robust.plants(self.plant, self.family)
-        return self.robust.plants(self.plant) + self.family
+        return label_set(self.robust.plants(self.plant), self.family)
 
     # ------------------------------------------------------------------ JSON
     def to_dict(self) -> dict:
