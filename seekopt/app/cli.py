@@ -179,8 +179,9 @@ def _plant_family(paths):
     """``--plant`` given once or more: ``(nominal, [other members], names)``."""
     paths = list(paths) if isinstance(paths, (list, tuple)) else [paths]
     plants = [_load_plant(p) for p in paths]
-    for p, path in zip(plants, paths):
-        p.meta.setdefault("family_name", Path(path).stem)
+    if len(plants) > 1:
+        for p, path in zip(plants, paths):
+            p.meta.setdefault("family_name", Path(path).stem)
     return plants[0], plants[1:], [Path(p).name for p in paths]
 
 
@@ -267,15 +268,18 @@ def cmd_bench(args) -> int:
     """``seekopt bench``: sine / windowed sine / optimal table (+ Fig. 9/10-style plots); see :mod:`seekopt.evaluate.bench`."""
     import math
     from seekopt.evaluate.bench import format_table, run_bench
-    plant, controller = _load_plant(args.plant), _load_controller(args.controller)
+    plant, family, names = _plant_family(args.plant)
+    controller = _load_controller(args.controller)
     truth = _load_plant(args.truth) if args.truth else None
+    robust = _robust_choice(args, plant)
     for name, v in (("--imax", args.imax), ("--settle", args.settle)):
         if not (math.isfinite(v) and v > 0):
             raise UsageError(f"{name} must be a positive number (got {v})")
     if not math.isfinite(args.tracks) or args.tracks == 0:
         raise UsageError(f"--tracks must be a non-zero number (got {args.tracks})")
-    res = run_bench(plant, controller, args.tracks, args.imax, args.settle, truth=truth, figures=args.figures)
-    print(f"design plant {Path(args.plant).name}, evaluated on "
+    res = run_bench(plant, controller, args.tracks, args.imax, args.settle, truth=truth, figures=args.figures,
+                    robust=robust, family=family)
+    print(f"design plant {', '.join(names)}, evaluated on "
           f"{Path(args.truth).name if args.truth else 'the design plant'}")
     print(format_table(res))
     for f in res.figures:
@@ -305,8 +309,12 @@ def cmd_loop(args) -> int:
 
 def cmd_sweep(args) -> int:
     from seekopt.evaluate.sweep import SweepConfig, parse_tpi, parse_tracks, run_sweep
-    cfg = SweepConfig(_load_plant(args.plant), _load_controller(args.controller), parse_tpi(args.tpi),
-                      parse_tracks(args.tracks), args.imax, args.settle, designer=args.designer)
+    plant, family, _ = _plant_family(args.plant)
+    if args.drift:
+        _robust_choice(args, plant)                 # a bad --drift is an input error before anything runs
+    cfg = SweepConfig(plant, _load_controller(args.controller), parse_tpi(args.tpi),
+                      parse_tracks(args.tracks), args.imax, args.settle, designer=args.designer,
+                      family=family, drift=",".join(args.drift) or None)
     engine = args.dask or "process"
     s = run_sweep(cfg, args.output, engine=engine, workers=args.workers)
     print(f"sweep: {s.total} cells ({s.skipped} saved before, {s.computed} computed in {s.wall_s:.1f} s "
@@ -385,7 +393,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=cmd_design)
 
     s = sub.add_parser("bench", help="benchmark optimal profiles against sine and windowed sine")
-    s.add_argument("--plant", required=True)
+    s.add_argument("--plant", required=True, action="append",
+                   help="design plant JSON; repeat for a family (the robust variant holds every member)")
+    s.add_argument("--drift", action="append", default=[], help="drift of the robust variant (as for design)")
+    s.add_argument("--robust", default=None, help="per-mode box of the robust variant instead of --drift; 'none'")
     s.add_argument("--controller")
     s.add_argument("--truth", help="evaluate on this plant (default: the design plant)")
     s.add_argument("--tracks", type=float, default=200.0)
@@ -402,7 +413,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=cmd_loop)
 
     s = sub.add_parser("sweep", help="sweep designs over TPI and seek length")
-    s.add_argument("--plant", required=True)
+    s.add_argument("--plant", required=True, action="append",
+                   help="plant JSON; repeat for a family (the optimal designs hold every member)")
+    s.add_argument("--drift", action="append", default=[], help="drift of the ocp-robust designer (as for design)")
     s.add_argument("--controller")
     s.add_argument("--tpi", required=True, help="start:stop:count in TPI, e.g. 200k:1000k:9")
     s.add_argument("--tracks", required=True, help="comma-separated seek lengths")

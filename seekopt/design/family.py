@@ -99,9 +99,12 @@ class Drift:
     ----------
     temp_pct : float or None
         Common scale of every resonance frequency [%] (temperature: all modes move together, one
-        parameter).  None: from the data (the family's spread; 0 for a single plant).
+        parameter).  None: from the data (a family's members are in the set: they are the drift the
+        data shows; a single plant shows none).
     zeta_pct : float or None
-        Common scale of every damping ratio [%] (with temperature).  None: from the data.
+        Scale of every damping ratio [%], moving with temperature when ``temp`` is stated (the
+        damping falls as the frequencies rise: cold x1.04 / x0.8, hot x0.96 / x1.2), else on its own.
+        None: from the data.
     gain_pct : float or None
         Drive gain ``k0`` (the whole plant with it) [%], compensated in the feedforward by the drive's
         gain calibration (see the module notes): it changes the loop gain.  None: from the data (the
@@ -246,13 +249,13 @@ class Drift:
         src = {}
 
         def common(stated, key):
+            # a family's members are in the set themselves: they are where the data puts the common
+            # drift (on the line the temperatures trace, not at the corners of a box around it)
             if stated is not None:
                 src[key] = "stated"
                 return stated / 100.0 if key != "delay" else stated
-            if spread is not None:
-                src[key] = "family spread"
-                return spread[key]
-            src[key] = "none" if key in ("temp", "zeta") else "std"
+            src[key] = (f"family members (spread ±{100 * spread[key]:.3g}%)" if key != "delay" else
+                        f"family members (spread ±{1e6 * spread[key]:.3g} us)") if spread is not None else "none"
             return 0.0
         temp, zeta = common(self.temp_pct, "temp"), common(self.zeta_pct, "zeta")
         gain = common(self.gain_pct, "gain")
@@ -464,12 +467,49 @@ def _sylvester(nrows: int) -> np.ndarray:
     return H
 
 
+def _common_corners(r: "DriftRanges", fs):
+    """Corners of the common (correlated) drifts: ``(signs, _vary keywords, label)``.
+
+    Temperature is one parameter: every frequency x ``(1 + temp T)`` and, when a damping range is
+    stated with it, every damping ratio x ``(1 - zeta T)`` (cold: stiffer and less damped, as the
+    benchmark family's x1.04 / x0.8), ``T = +-1``; a damping range without temperature is its own
+    parameter.  Gain (compensated), feedforward calibration error and delay are further parameters.
+    Full factorial up to four parameters, a resolution-V half fraction for five.  Ranges too small to
+    change a seek (a 3-std ``k0`` of 0.005 %, a delay of 0.1 % of a sample) add no corner."""
+    params = []
+    if r.temp >= 1e-4:
+        params.append(("temp", {"temp": r.temp, "zeta": -r.zeta},
+                       lambda s: f"temp{'+' if s > 0 else '-'}{100 * r.temp:.3g}%"
+                       + (f" (zeta{'-' if s > 0 else '+'}{100 * r.zeta:.3g}%)" if r.zeta else "")))
+    elif r.zeta >= 1e-3:
+        params.append(("zeta", {"zeta": r.zeta}, lambda s: f"zeta{'+' if s > 0 else '-'}{100 * r.zeta:.3g}%"))
+    for nm, w, lo in (("gain", r.gain, 1e-3), ("ffgain", r.ffgain, 1e-3), ("delay", r.delay, 1e-3 / (fs or 1e4))):
+        if w >= lo:
+            params.append((nm, {nm: w}, (lambda s, nm=nm, w=w: f"{nm}{'+' if s > 0 else '-'}{w * 1e6:.3g}us"
+                                         if nm == "delay" else f"{nm}{'+' if s > 0 else '-'}{100 * w:.3g}%")))
+    if not params:
+        return []
+    if len(params) <= 4:
+        rows = list(itertools.product((1, -1), repeat=len(params)))
+    else:
+        rows = [t + (int(np.prod(t)),) for t in itertools.product((1, -1), repeat=4)]
+    out = []
+    for signs in rows:
+        kw = {}
+        for (_, d, _), sg in zip(params, signs):
+            for k, v in d.items():
+                kw[k] = kw.get(k, 0.0) + sg * v
+        out.append((signs, kw, " ".join(lab(sg) for (_, _, lab), sg in zip(params, signs))))
+    return out
+
+
 def drift_set(nominal: ModalPlant, family, drift: Drift) -> list:
     """The robust set of ``drift`` about ``nominal`` with the members of ``family``.
 
     Order: the nominal plant (``set_label`` "nominal"), the family members ("member 1", ...), the
-    corners of the common drifts (every sign combination of the non-zero ones of temperature, damping
-    scale, gain and delay: "temp+4% zeta-20% ..."), the per-mode corners (every mode's frequency at
+    nominal plant moved by each member's common drift (frequency and damping scale, gain, delay:
+    "nominal at member 1's drift"), the corners of the common drifts (:func:`_common_corners`: temperature with its damping, gain,
+    feedforward gain error, delay: "temp+4% (zeta-20%) gain-5%"), the per-mode corners (every mode's frequency at
     + its range, at -; every gain at +, at -), then ``drift.n_samples`` orthogonal-array rows
     ("oa 1", ...) over the per-mode ranges (each mode's frequency, damping and gain at +- its
     range: columns of a Sylvester-Hadamard array, strength 2).  Plants that coincide are kept once.
@@ -478,21 +518,13 @@ def drift_set(nominal: ModalPlant, family, drift: Drift) -> list:
     nom = _vary(nominal, "nominal")
     out = [nom]
     out += [_member(p, k, nominal.k0) for k, p in enumerate(family, 1)]
-    names = ("temp", "zeta", "gain", "ffgain", "delay")
-    widths = (rng_.temp, rng_.zeta, rng_.gain, rng_.ffgain, rng_.delay)
-    # ranges too small to change a seek (a 3-sigma k0 of 0.005 %, a delay of 0.1 % of a sample) add no vertex
-    floor = (1e-4, 1e-3, 1e-3, 1e-3, 1e-3 / (nominal.sample_rate_hz or 1e4))
-    active = [(nm, w) for nm, w, lo in zip(names, widths, floor) if w >= lo]
-    if len(active) <= 4:                 # full factorial of the common drifts (at most 16 corners)
-        sign_rows = list(itertools.product((1, -1), repeat=len(active)))
-    else:                                # 2^(5-1) fraction, resolution V: the fifth sign = product of four
-        sign_rows = [r + (int(np.prod(r)),) for r in itertools.product((1, -1), repeat=4)]
-    for signs in sign_rows:
-        kw = {nm: s * w for (nm, w), s in zip(active, signs)}
-        label = " ".join(f"{nm}{'+' if s > 0 else '-'}{w * 1e6:g}us" if nm == "delay" else
-                         f"{nm}{'+' if s > 0 else '-'}{100 * w:.3g}%" for (nm, w), s in zip(active, signs))
-        if kw:
-            out.append(_vary(nominal, label, **kw))
+    # the nominal plant moved to each member's common drift: covers what one member's identification
+    # missed or got wrong (a mode another temperature's log shows is there at this one too)
+    if family:
+        for k, (t, z, g, d) in enumerate(family_spread(nominal, family)["members"], 1):
+            out.append(_vary(nominal, f"nominal at member {k}'s drift", temp=t, zeta=z, gain=g, delay=d))
+    for signs, kw, label in _common_corners(rng_, nominal.sample_rate_hz):
+        out.append(_vary(nominal, label, **kw))
     n = len(nominal.modes)
     for what, arr in (("freq", rng_.df), ("gain", rng_.dg)):   # per-mode corners: every mode at + / at -
         if np.any(arr > 0):

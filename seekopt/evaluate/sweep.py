@@ -183,6 +183,12 @@ class SweepConfig:
         a factory ``f(plant, controller, imax, settle) -> obj`` with ``obj.design(tracks)``.
     kinds : tuple of str
         Subset of :data:`ALL_KINDS` (default :data:`KINDS`).
+    family : list of ModalPlant
+        Further members of the drive's plant family (``plant`` is the nominal one): the optimal
+        designs (``ocp``, ``ocp-robust``) hold every member; the table evaluates on ``plant``.
+    drift : str or None
+        Drift of the ``ocp-robust`` designer in physical terms (:meth:`seekopt.design.family.Drift.from_string`;
+        None: from the data).
     """
 
     plant: ModalPlant
@@ -195,6 +201,8 @@ class SweepConfig:
     kinds: tuple = KINDS
     horizon_s: float | None = None
     scale_controller: bool = True
+    family: list = field(default_factory=list)
+    drift: str | None = None
 
     def __post_init__(self):
         if self.plant.track_pitch_nm is None:
@@ -205,13 +213,27 @@ class SweepConfig:
         if bad:
             raise SweepError(f"unknown profile kind {bad[0]!r} (known: {', '.join(ALL_KINDS)})")
         self.tpis, self.tracks = parse_tpi(",".join(map(repr, self.tpis))), parse_tracks(self.tracks)
+        self.family = list(self.family or [])
+        if any(p.track_pitch_nm is None for p in self.family):
+            raise SweepError("a family member has no track_pitch_nm; a TPI sweep needs the physical gain")
+        if self.drift:
+            from seekopt.design.family import Drift, DriftError
+            try:
+                Drift.from_string(self.drift).check_modes(self.plant)
+            except DriftError as exc:
+                raise SweepError(f"--drift: {exc}") from None
 
     def identity(self) -> dict:
         """Everything but the grid: what saved cells must agree on to be reused."""
-        return {"plant": self.plant.to_dict(), "controller": self.controller.to_dict(),
-                "imax": float(self.imax), "settle": float(self.settle), "designer": self.designer,
-                "kinds": list(self.kinds), "horizon_s": self.horizon_s,
-                "scale_controller": bool(self.scale_controller)}
+        d = {"plant": self.plant.to_dict(), "controller": self.controller.to_dict(),
+             "imax": float(self.imax), "settle": float(self.settle), "designer": self.designer,
+             "kinds": list(self.kinds), "horizon_s": self.horizon_s,
+             "scale_controller": bool(self.scale_controller)}
+        if self.family:              # only when used: sweeps of one plant keep their hash
+            d["family"] = [p.to_dict() for p in self.family]
+        if self.drift:
+            d["drift"] = self.drift
+        return d
 
     def hash(self) -> str:
         import hashlib
@@ -223,6 +245,7 @@ class SweepConfig:
         d = self.identity()
         d.update(tpis=list(self.tpis), tracks=list(self.tracks), config_hash=self.hash(),
                  plant_hash=self.plant.hash(), controller_hash=self.controller.hash(),
+                 **({"family_hashes": [p.hash() for p in self.family]} if self.family else {}),
                  tool_version=__version__, code_hash=code_hash(), schema=1)
         return d
 
@@ -230,7 +253,8 @@ class SweepConfig:
     def from_dict(cls, d: dict) -> "SweepConfig":
         return cls(ModalPlant.from_dict(d["plant"]), Controller.from_json(d["controller"]),
                    d["tpis"], d["tracks"], d["imax"], d["settle"], d["designer"],
-                   tuple(d["kinds"]), d.get("horizon_s"), d.get("scale_controller", True))
+                   tuple(d["kinds"]), d.get("horizon_s"), d.get("scale_controller", True),
+                   [ModalPlant.from_dict(p) for p in d.get("family", [])], d.get("drift"))
 
     def cells(self) -> list[tuple[float, float]]:
         """Cells in submission order: by TPI (designer reuse), longest seeks first (balance)."""
@@ -280,12 +304,17 @@ class BaselineDesigner:
                                objective="shortest_bang_bang", solve_time_s=time.perf_counter() - t0)
 
 
-def _designer_factory(spec: str):
+def _designer_factory(spec: str, family=None, drift: str | None = None):
+    """``f(plant, controller, imax, settle) -> designer``; the built-in ``ocp`` (nominal) and ``ocp-robust``
+    (the default :class:`seekopt.design.family.Drift`, or ``drift``) designs also hold the ``family``
+    members (already at the cell's TPI)."""
     if spec in ("ocp", "ocp-robust"):
-        from seekopt.design.ocp import RobustSpec, SeekDesigner
-        robust = RobustSpec() if spec == "ocp-robust" else None
-        return lambda plant, controller, imax, settle: SeekDesigner(plant, controller, imax, settle=settle,
-                                                                    robust=robust)
+        from seekopt.design.designer import SeekDesigner
+        from seekopt.design.family import Drift
+        from seekopt.design.problem import SeekProblem
+        robust = Drift.from_string(drift) if spec == "ocp-robust" else None
+        return lambda plant, controller, imax, settle: SeekDesigner(SeekProblem(
+            plant, controller, imax, settle, robust=robust, family=list(family or [])))
     if spec == "baseline":
         return BaselineDesigner
     mod, _, attr = spec.partition(":")
@@ -364,8 +393,10 @@ def compute_cell(payload: dict) -> dict:
             row.update({m: None for m in _METRICS})
             try:
                 if kind == "optimal":
-                    designer = _cached(("designer", h, tpi), lambda: _designer_factory(cfgd["designer"])(
-                        plant, ctrl, imax, settle))
+                    members = [_cached(("member", h, tpi, i), lambda m=m: ModalPlant.from_dict(m).at_tpi(tpi))
+                               for i, m in enumerate(cfgd.get("family", []))]
+                    designer = _cached(("designer", h, tpi), lambda: _designer_factory(
+                        cfgd["designer"], members, cfgd.get("drift"))(plant, ctrl, imax, settle))
                     res = designer.design(tracks)
                     prof = res.profile
                     row.update(design_status=str(res.status), solver=str(res.solver),
