@@ -43,6 +43,7 @@ from seekopt.design.metrics import SeekMetrics, evaluate_profile, worst_case
 from seekopt.design.problem import ProblemError, SeekProblem, check_closed_loop
 from seekopt.design.profiles import Profile, finish_profile, reference_from_model, rigid_endpoint_matrix, t_bang_bang
 from seekopt.design.solvers import QPStatus, SolverChain
+from seekopt.design.working_set import WorkingSetQP
 
 __all__ = ["DesignInfeasible", "DesignError", "DesignResult", "SeekDesigner", "design_seek"]
 
@@ -86,14 +87,15 @@ class DesignResult:
 class _Stats:
     """Per-design solve bookkeeping."""
 
-    def __init__(self):
+    def __init__(self, primary: str):
+        self.primary = primary
         self.n, self.t, self.status, self.fallback, self.unresolved = 0, 0.0, "", 0, []
 
     def add(self, N: int, sol) -> None:
         self.n += 1
         self.t += sol.solve_time_s
         self.status = sol.status
-        if len(sol.attempts) > 1 and sol.outcome in (QPStatus.OPTIMAL, QPStatus.INFEASIBLE):
+        if sol.solver != self.primary and sol.outcome in (QPStatus.OPTIMAL, QPStatus.INFEASIBLE):
             self.fallback += 1
         if sol.outcome not in (QPStatus.OPTIMAL, QPStatus.INFEASIBLE):
             self.unresolved.append((N, " -> ".join(f"{a} {b} ({c})" for a, b, c in sol.attempts)))
@@ -147,6 +149,7 @@ class SeekDesigner:
         self.ignored_effects = [e.name for e in p.plant.effects if e.kind != "structural"]
         self._maps, self._maps_h = None, 0
         self._qps: dict = {}
+        self._ws: dict = {}             # working-set solver per structure
         self.builds, self.map_builds = 0, 0
         self.solver_builds: Counter = Counter()
 
@@ -202,15 +205,26 @@ class SeekDesigner:
         return [c for c in self.settings.size_classes if n_from <= c <= self.max_samples] or [self.max_samples]
 
     # ------------------------------------------------------------------ solving
+    def _working_set(self, qp: _qp.SeekQP) -> WorkingSetQP:
+        if qp not in self._ws:
+            s = self.settings
+            self._ws[qp] = WorkingSetQP(qp, lambda n, m: SolverChain(n, m, s.chain, s.options,
+                                                                     builds=self._count_solver))
+        return self._ws[qp]
+
     def _solve(self, qp: _qp.SeekQP, K, n, beta, stats: _Stats, warm=None, epigraph=False):
         hf_tol = self.hf_tol if self.hf_guard else None
-        data = qp.data(K, n, None if epigraph else beta, self.gamma, hf_tol, self.slew)
+        args = (K, n, None if epigraph else beta, self.gamma, hf_tol, self.slew)
         tol = self.settings.violation_tol
+        bounds = qp.bounds(*args)
 
-        def check(x):       # never trust a status alone: re-check the answer against the data
-            viol = qp.violation(x, K, *data[3:])
+        def check(x, A=None):       # never trust a status alone: re-check the answer against the data
+            viol = qp.violation(x, K, *bounds[1:], A=A)
             return f"constraint violation {viol:.2g}" if viol > tol else ""
-        sol = qp.solver.solve(*data, x0=warm, check=check)
+        if self.settings.working_set:
+            sol = self._working_set(qp).solve(*args, x0=warm, check=check)
+        else:
+            sol = qp.solver.solve(*qp.data(*args), x0=warm, check=check)
         stats.add(n, sol)
         return sol
 
@@ -236,7 +250,7 @@ class SeekDesigner:
         """Fewest seek samples for which currents, guard and rest-to-rest can be met (no band);
         -1 when none within the horizon (lengths no solver decides count as not feasible)."""
         K = self.check_seek(tracks)
-        stats = _Stats()
+        stats = _Stats(self.solver_name)
         epi = True          # the structure objective (a) uses
         lo = max(int(math.floor(t_bang_bang(K, self.plant.k0, self.imax) * self.fs)) - 1, 0)
         for c in self._classes(lo + 1):
@@ -275,7 +289,7 @@ class SeekDesigner:
         request cannot be met and :class:`DesignError` when no verified design is found.
         """
         K = self.check_seek(tracks)
-        stats = _Stats()
+        stats = _Stats(self.solver_name)
         n_rigid = int(math.ceil(t_bang_bang(K, self.plant.k0, self.imax) * self.fs - 1e-9))
         if seek_samples is not None:
             N = int(seek_samples)

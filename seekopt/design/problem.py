@@ -57,16 +57,22 @@ class SolverSettings:
         1.3 ms later at K = 3000).
     violation_tol : float
         Largest relative constraint violation accepted from a solver's answer.
+    working_set : bool
+        Solve each QP on a working set of its rows, adding back violated rows
+        (:class:`seekopt.design.working_set.WorkingSetQP`; the same optimum on far fewer rows).  Off by
+        default: a reduced "infeasible" must be confirmed on the full QP (daqp has reported -1 on
+        reduced QPs that other solvers solve), which cancels the gain (``studies/design_speed.py``).
     """
 
     qp_solver: str = "daqp"
-    fallbacks: tuple = ("qpoases",)
+    fallbacks: tuple = ("qpoases", "highs")
     options: dict = field(default_factory=dict)
     max_samples: int = 512
     size_classes: tuple = SIZE_CLASSES
     thin_above_samples: int = 128
     thin_stride: int = 2
     violation_tol: float = 1e-3
+    working_set: bool = False
 
     def __post_init__(self):
         self.fallbacks = tuple(self.fallbacks)
