@@ -321,8 +321,9 @@ class SeekDesigner:
         else:
             if stats.unresolved:
                 raise self._failed(K, f"within {self.max_samples} samples", stats)
+            tbb = t_bang_bang(K, self.plant.k0, self.imax)
             raise DesignInfeasible(f"seek of {K:g} tracks cannot settle within {self.max_samples} samples "
-                                   f"at Imax {self.imax:g} A (T_bb = {t_bang_bang(K, self.plant.k0, self.imax) * 1e3:.4g} ms)")
+                                   f"at Imax {self.imax:g} A (T_bb = {tbb * 1e3:.4g} ms)")
         hi, best = c, sol
         while hi - lo > 1:
             mid = (lo + hi) // 2
