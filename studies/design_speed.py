@@ -4,9 +4,10 @@ Run::
 
     python studies/design_speed.py [--against REV] [--ks 1,10,50,200,1000] [--identified PLANT.json]
 
-The same worker (``--worker``) runs twice in fresh processes, once on ``git archive REV`` (default
-``e6b5b6e``: the design code before the SeekProblem refactor; ``37b8cdb`` works too) and once on this
-tree, with one BLAS thread.  Each worker builds ONE designer per (design plant, nominal/robust) and
+The same worker (``--worker``) runs in fresh processes, once on ``git archive REV`` (default
+``e6b5b6e``: the design code before the SeekProblem refactor; ``37b8cdb`` works too) and twice on this
+tree, with one BLAS thread set by the environment (``--blas-default``: the library's default thread
+count, where this tree's designer limits BLAS to ``SolverSettings.blas_threads`` itself).  Each worker builds ONE designer per (design plant, nominal/robust) and
 designs every length in turn (the designer of a sweep: warm process, structures reused), recording:
 
 * the seek-settle samples the design claims (``N``) and the settle time measured by the one simulator
@@ -84,9 +85,14 @@ def worker(plants_json: str, ks: list, out: str, variant: str = "default") -> No
     Path(out).write_text(json.dumps(rows, indent=1))
 
 
-def run_tree(tree: Path, plants_json: Path, ks, out: Path, variant: str = "default") -> list:
-    env = dict(os.environ, PYTHONPATH=str(tree), OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1",
-               MKL_NUM_THREADS="1")
+def run_tree(tree: Path, plants_json: Path, ks, out: Path, variant: str = "default",
+             one_thread: bool = True) -> list:
+    env = dict(os.environ, PYTHONPATH=str(tree))
+    for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        if one_thread:
+            env[k] = "1"
+        else:
+            env.pop(k, None)
     cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", str(plants_json), ",".join(map(str, ks)),
            str(out), variant]
     subprocess.run(cmd, env=env, cwd=tree, check=True)
@@ -99,6 +105,8 @@ def main(argv=None) -> int:
     ap.add_argument("--ks", default=",".join(f"{k:g}" for k in KS))
     ap.add_argument("--identified", help="identified plant JSON (default: identify the bundled sample log)")
     ap.add_argument("--before-json", help="reuse the older revision's worker output (skip that run)")
+    ap.add_argument("--blas-default", action="store_true",
+                    help="leave the BLAS thread count to the library (default: 1 thread by environment)")
     ap.add_argument("--worker", nargs=4, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a.worker:
@@ -128,12 +136,13 @@ def main(argv=None) -> int:
         old.mkdir()
         arch = subprocess.run(["git", "-C", str(ROOT), "archive", a.against], check=True, capture_output=True).stdout
         subprocess.run(["tar", "-x", "-C", str(old)], input=arch, check=True)
-        before = run_tree(old, plants, ks, tmp / "before.json")
-    after = run_tree(ROOT, plants, ks, tmp / "after.json")
+        before = run_tree(old, plants, ks, tmp / "before.json", one_thread=not a.blas_default)
+    after = run_tree(ROOT, plants, ks, tmp / "after.json", one_thread=not a.blas_default)
     wset = {(r["plant"], r["design"], r["K"]): r
-            for r in run_tree(ROOT, plants, ks, tmp / "working_set.json", "working_set")}
+            for r in run_tree(ROOT, plants, ks, tmp / "working_set.json", "working_set", not a.blas_default)}
     key = {(r["plant"], r["design"], r["K"]): r for r in before}
-    print(f"\nagainst {a.against}; worker outputs in {tmp}")
+    print(f"\nagainst {a.against}; BLAS threads: {'library default' if a.blas_default else '1 (environment)'}; "
+          f"worker outputs in {tmp}")
     print("| design plant | design | K | N before | N after | truth T_ss ms before | after | "
           "CPU s before | after | before/after | N working set | CPU s working set |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
@@ -152,7 +161,8 @@ def main(argv=None) -> int:
             wratios.setdefault(r["design"], []).append(b["cpu_s"] / max(w["cpu_s"], 1e-9))
         print(f"| {r['plant']} | {r['design']} | {r['K']:g} | {b['N']} | {r['N']} | "
               f"{b['settle_truth_s'] * 1e3:.3f} | {r['settle_truth_s'] * 1e3:.3f} | {b['cpu_s']:.3f} | "
-              f"{r['cpu_s']:.3f} | {ratio:.2f} | {w.get('N', w.get('error', '?'))} | {w.get('cpu_s', float('nan')):.3f} |")
+              f"{r['cpu_s']:.3f} | {ratio:.2f} | {w.get('N', w.get('error', '?'))} | "
+              f"{w.get('cpu_s', float('nan')):.3f} |")
     import statistics
     print(f"\nlargest change of the designed settle samples: {worst}")
     for name, rat in (("default", ratios), ("working set", wratios)):

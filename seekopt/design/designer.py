@@ -30,11 +30,13 @@ are not modelled by the optimiser; every design is re-checked on the full plant 
 """
 from __future__ import annotations
 
+import contextlib
 import math
 from collections import Counter
 from dataclasses import dataclass
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from identification.model.plant import ModalPlant
 
@@ -250,6 +252,10 @@ class SeekDesigner:
         """Fewest seek samples for which currents, guard and rest-to-rest can be met (no band);
         -1 when none within the horizon (lengths no solver decides count as not feasible)."""
         K = self.check_seek(tracks)
+        with self._blas():
+            return self._shortest_feasible(K)
+
+    def _shortest_feasible(self, K: float) -> int:
         stats = _Stats(self.solver_name)
         epi = True          # the structure objective (a) uses
         lo = max(int(math.floor(t_bang_bang(K, self.plant.k0, self.imax) * self.fs)) - 1, 0)
@@ -270,7 +276,7 @@ class SeekDesigner:
 
     def _infeasible(self, K, n_req) -> DesignInfeasible:
         tbb = t_bang_bang(K, self.plant.k0, self.imax)
-        n = self.shortest_feasible(K)
+        n = self._shortest_feasible(K)
         what = (f"shortest feasible seek time is {n} samples ({n / self.fs * 1e3:.4g} ms)" if n > 0 else
                 f"no feasible seek within {self.max_samples} samples")
         return DesignInfeasible(f"seek of {K:g} tracks in {n_req} samples ({n_req / self.fs * 1e3:.4g} ms) "
@@ -281,14 +287,24 @@ class SeekDesigner:
         return DesignError(f"QP solvers {'/'.join(self.settings.chain)} failed without proof for {K:g} tracks "
                            f"{what}: {stats.why()}")
 
+    def _blas(self):
+        """BLAS thread limit for a design (:attr:`SolverSettings.blas_threads`)."""
+        n = self.settings.blas_threads
+        return threadpool_limits(limits=int(n), user_api="blas") if n else contextlib.nullcontext()
+
     def design(self, tracks: float, seek_samples: int | None = None) -> DesignResult:
         """Design the seek of ``tracks`` tracks.
 
         ``seek_samples=None``: minimum seek-settle time (objective (b)); an integer: minimum residual
         vibration for that seek length (objective (a)).  Raises :class:`DesignInfeasible` when the
-        request cannot be met and :class:`DesignError` when no verified design is found.
+        request cannot be met and :class:`DesignError` when no verified design is found.  Runs with
+        at most :attr:`SolverSettings.blas_threads` BLAS threads.
         """
         K = self.check_seek(tracks)
+        with self._blas():
+            return self._design(K, seek_samples)
+
+    def _design(self, K: float, seek_samples: int | None) -> DesignResult:
         stats = _Stats(self.solver_name)
         n_rigid = int(math.ceil(t_bang_bang(K, self.plant.k0, self.imax) * self.fs - 1e-9))
         if seek_samples is not None:
@@ -300,7 +316,7 @@ class SeekDesigner:
             sol = self._solve(qp, K, N, None, stats, epigraph=epi)
             if not sol.success:
                 if sol.infeasible:
-                    n_min = self.shortest_feasible(K)
+                    n_min = self._shortest_feasible(K)
                     if n_min < 0 or N < n_min:
                         raise self._infeasible(K, N)
                 raise self._failed(K, f"in {N} samples", stats)

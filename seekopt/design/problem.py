@@ -62,6 +62,10 @@ class SolverSettings:
         (:class:`seekopt.design.working_set.WorkingSetQP`; the same optimum on far fewer rows).  Off by
         default: a reduced "infeasible" must be confirmed on the full QP (daqp has reported -1 on
         reduced QPs that other solvers solve), which cancels the gain (``studies/design_speed.py``).
+    blas_threads : int or None
+        BLAS threads while designing (``threadpoolctl``; None: leave as is).  The design's matrices
+        are small: with 2 OpenBLAS threads on this 2-core machine three robust designs took 8-12 s
+        CPU, with 1 thread 1.3-1.6 s (same designs).
     """
 
     qp_solver: str = "daqp"
@@ -73,6 +77,7 @@ class SolverSettings:
     thin_stride: int = 2
     violation_tol: float = 1e-3
     working_set: bool = False
+    blas_threads: int | None = 1
 
     def __post_init__(self):
         self.fallbacks = tuple(self.fallbacks)
