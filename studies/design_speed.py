@@ -7,8 +7,9 @@ Run::
 The same worker (``--worker``) runs in fresh processes, once on ``git archive REV`` (default
 ``e6b5b6e``: the design code before the SeekProblem refactor; ``37b8cdb`` works too) and twice on this
 tree, with one BLAS thread set by the environment (``--blas-default``: the library's default thread
-count, where this tree's designer limits BLAS to ``SolverSettings.blas_threads`` itself).  Each worker builds ONE designer per (design plant, nominal/robust) and
-designs every length in turn (the designer of a sweep: warm process, structures reused), recording:
+count, where this tree's designer limits BLAS to ``SolverSettings.blas_threads`` itself).  Each
+worker builds ONE designer per (design plant, nominal/robust) and designs every length in turn (the
+designer of a sweep: warm process, structures reused), recording:
 
 * the seek-settle samples the design claims (``N``) and the settle time measured by the one simulator
   on the design plant and on the truth (``default_truth_plant()``);
