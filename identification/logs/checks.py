@@ -77,14 +77,14 @@ def unit_warnings(log) -> list[str]:
     """
     name = log.source or "<arrays>"
     peak = float(np.max(np.abs(log.current_a)))
-    lo, hi = PLAUSIBLE_PEAK_CURRENT_A
+    hi = PLAUSIBLE_PEAK_CURRENT_A[1]
     if peak <= hi:
         return []
     unit = _fitting_unit(peak)
     hint = (f"is the log's current in {unit}? (then use --current-unit {unit})" if unit else
             "check the current's unit")
     return [f"{name}: current_a peaks at {peak:.4g}, implausible in A for a disk-drive actuator "
-            f"(peaks of {lo:g} to {hi:g} A): {hint}"]
+            f"(below {hi:g} A): {hint}"]
 
 
 def k0_warning(k0: float, source: str = "plant") -> str | None:
@@ -96,7 +96,7 @@ def k0_warning(k0: float, source: str = "plant") -> str | None:
     if k0 < lo:
         factor = 1e3 if lo <= k0 * 1e3 <= hi else 1e6 if lo <= k0 * 1e6 <= hi else None
         unit = {1e3: "mA", 1e6: "uA"}.get(factor)
-        hint = (f"the current looks {factor:.0e} times too large: is it logged in {unit}? "
+        hint = (f"the current looks {factor:g} times too large: is it logged in {unit}? "
                 f"(then use --current-unit {unit})" if unit else
                 "is the current in A and the position in tracks?")
     else:

@@ -62,7 +62,7 @@ def closed_loop_poles(plant, controller) -> np.ndarray:
     return np.linalg.eigvals(A)
 
 
-def check_loop(plant, controller, plant_name: str = "plant", controller_name: str | None = None) -> None:
+def check_loop(plant, controller, plant_name: str = "the plant", controller_name: str | None = None) -> None:
     """Raise :class:`LoopError` if ``controller`` is not the drive's controller for ``plant``.
 
     Parameters
@@ -70,25 +70,26 @@ def check_loop(plant, controller, plant_name: str = "plant", controller_name: st
     plant : ModalPlant
     controller : Controller
     plant_name, controller_name : str
-        How the user named them (file names), used in the message.
+        How the user named them, used verbatim in the message: e.g. ``"plant plant.json"`` and
+        ``"ctrl.json"`` (default ``"controller '<its name>'"``).
 
     Raises
     ------
     LoopError
-        ``"<controller>: runs at 50000 Hz but the plant <plant> was identified at 26400 Hz ..."`` or
-        ``"<controller> with plant <plant>: closed loop is unstable (pole |z| = 1.31 at 812 Hz) ..."``.
+        ``"ctrl.json: controller runs at 50000 Hz but plant plant.json was identified at 26400 Hz; ..."``
+        or ``"ctrl.json: closed loop with plant plant.json is unstable (pole |z| = 1.2 at 0 Hz); ..."``.
     """
     cname = controller_name or f"controller {controller.name!r}"
     fc, fp = float(controller.sample_rate_hz), plant.sample_rate_hz
     if fp is not None and abs(fc - fp) > RATE_TOL * fp:
-        raise LoopError(f"{cname}: runs at {fc:g} Hz but the plant {plant_name} was identified at "
+        raise LoopError(f"{cname}: controller runs at {fc:g} Hz but {plant_name} was identified at "
                         f"{fp:g} Hz; use the drive's controller at {fp:g} Hz")
     poles = closed_loop_poles(plant, controller)
     if not np.all(np.isfinite(poles)):
-        raise LoopError(f"{cname} with plant {plant_name}: closed loop cannot be evaluated (non-finite poles)")
+        raise LoopError(f"{cname}: closed loop with {plant_name} cannot be evaluated (non-finite poles)")
     i = int(np.argmax(np.abs(poles)))
     rho = float(abs(poles[i]))
     if rho >= 1.0 - 1e-9:
         f = abs(math.atan2(poles[i].imag, poles[i].real)) * fc / (2 * math.pi)
-        raise LoopError(f"{cname} with plant {plant_name}: closed loop is unstable (pole |z| = {rho:.4g} "
-                        f"at {f:.0f} Hz); check the controller's sign, gain and sample rate")
+        raise LoopError(f"{cname}: closed loop with {plant_name} is unstable (pole |z| = {rho:.4g} at "
+                        f"{f:.0f} Hz); check the controller's sign, gain and sample rate")

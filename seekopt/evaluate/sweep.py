@@ -523,7 +523,7 @@ def check_inputs(cfg: SweepConfig) -> None:
         plant = cfg.plant.at_tpi(tpi)
         ctrl = controller_at_tpi(cfg.controller, cfg.plant, tpi) if cfg.scale_controller else cfg.controller
         try:
-            check_loop(plant, ctrl, "plant", f"controller {cfg.controller.name!r}")
+            check_loop(plant, ctrl, "the plant", f"controller {cfg.controller.name!r}")
         except LoopError as exc:
             raise SweepError(f"{exc} (at {tpi:g} TPI)") from None
 
