@@ -72,7 +72,7 @@ def warn(args, text: str) -> None:
 
 
 @contextlib.contextmanager
-def progress(args, what: str, after_s: float = PROGRESS_AFTER_S):
+def progress(args, what: str, after_s: float | None = None):
     """One stage of a command, logged on stderr with its elapsed time once it has run ``after_s``
     (2 s; quicker stages print nothing); silent with ``--quiet``.
 
@@ -87,6 +87,7 @@ def progress(args, what: str, after_s: float = PROGRESS_AFTER_S):
     if getattr(args, "quiet", False):
         yield
         return
+    after_s = PROGRESS_AFTER_S if after_s is None else after_s
     head = f"seekopt {getattr(args, 'command', '')}: {what}"
     tty = sys.stderr.isatty()
     t0 = time.perf_counter()
@@ -141,10 +142,10 @@ def check_output_file(path, option: str, suffixes: tuple | None = None) -> None:
     if path is None:
         return
     p = Path(path)
-    if suffixes and p.suffix.lower() not in suffixes:
-        raise UsageError(f"{option} {path}: unknown extension {p.suffix!r} (expected {', '.join(suffixes)})")
     if p.is_dir():
         raise UsageError(f"{option} {path}: is a folder, expected a file name")
+    if suffixes and p.suffix.lower() not in suffixes:
+        raise UsageError(f"{option} {path}: unknown extension {p.suffix!r} (expected {', '.join(suffixes)})")
     folder = p.parent
     if not folder.exists():
         raise UsageError(f"{option} {path}: folder {folder} does not exist")
@@ -388,7 +389,7 @@ def cmd_sweep(args) -> int:
     cfg = SweepConfig(plant, controller, parse_tpi(args.tpi), parse_tracks(args.tracks), args.imax, args.settle,
                       designer=args.designer)
     s = run_sweep(cfg, args.output, engine=args.dask or "process", workers=args.workers,
-                  progress=not args.quiet)
+                  progress=not args.quiet, figures=not args.no_figures)
     others = f", {s.by_others} by another sweep" if s.by_others else ""
     print(f"sweep: {s.total} cells ({s.skipped} saved before, {s.computed} computed in {s.wall_s:.1f} s "
           f"on {s.engine}, {s.cells_per_s:.2f} cells/s{others}); table {s.table}")
@@ -490,7 +491,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "(the paper's eqs. 4-11 exactly)")
     s.add_argument("--figures", metavar="DIR", help="folder for the figures (created)")
     s.add_argument("--current-unit", choices=["A", "mA", "uA"], default="A",
-                   help="unit of the log's current columns, converted to A (default A)")
+                   help="unit of the log's current columns: A (default), mA or uA; converted to A")
     s.set_defaults(func=cmd_identify)
 
     s = command("design", "design a minimum seek-settle-time seek profile (feedforward current + reference)")
@@ -543,6 +544,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="worker processes (default: the CPU count, at most the cells to do); one BLAS thread each")
     s.add_argument("-o", "--output", required=True, metavar="DIR",
                    help="results folder (created; rerunning resumes it, two sweeps into it share the cells)")
+    s.add_argument("--no-figures", action="store_true", help="write the table only, no sweep figures (faster)")
     s.set_defaults(func=cmd_sweep)
 
     s = command("export", "export a sweep's optimal profiles as fixed-point firmware tables")
