@@ -17,6 +17,7 @@ Two checks, both exact and cheap (well under a millisecond of linear algebra for
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -46,7 +47,10 @@ def closed_loop_poles(plant, controller) -> np.ndarray:
         Poles in the z-plane of the PES rate ``controller.sample_rate_hz``.
     """
     fs, L = float(controller.sample_rate_hz), int(controller.fast_multiple)
-    Ap, Bp, Cp, _ = plant.linear_part().discretize(1.0 / (fs * L)).augmented_ss()
+    # the linear part (as ModalPlant.linear_part, without its JSON round trip: effects from outside
+    # the library, e.g. a study's, stay usable)
+    linear = dataclasses.replace(plant, bias_a=0.0, effects=[e for e in plant.effects if e.kind == "structural"])
+    Ap, Bp, Cp, _ = linear.discretize(1.0 / (fs * L)).augmented_ss()
     Ac, Bc, Cc, Dc = controller.lifted_ss()
     n, nc = Ap.shape[0], Ac.shape[0]
     # plant over one PES sample: x+ = Phi^L x + sum_j Phi^(L-1-j) Bp u_j
