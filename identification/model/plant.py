@@ -29,6 +29,7 @@ where ``f[k]`` is the undelayed force channel (bias, state-dependent forces).
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import math
@@ -262,8 +263,10 @@ class ModalPlant:
         return self.copy(k0=self.k0 * self.track_pitch_nm / pitch, track_pitch_nm=pitch)
 
     def linear_part(self) -> "ModalPlant":
-        """The plant without nonlinear/output effects and bias (for linear design)."""
-        keep = [e for e in self.effects if e.kind == "structural"]
+        """The linear map current -> position (for linear design): structural effects only, no
+        bias and no pivot rest offset (both are constant forces, affine terms of the model)."""
+        keep = [dataclasses.replace(e, rest_track=0.0) if isinstance(e, PivotSpringDamper) else e
+                for e in self.effects if e.kind == "structural"]
         return self.copy(effects=keep, bias_a=0.0)
 
     @property
