@@ -18,6 +18,7 @@ from identification.model.plant import ModalPlant, atomic_write_text
 
 from seekopt.design.robust import RobustSpec
 from seekopt.design.solvers import QP_PLUGINS
+from seekopt.drive.loopcheck import closed_loop_poles
 
 __all__ = ["ProblemError", "SolverSettings", "SeekProblem", "check_closed_loop", "SIZE_CLASSES"]
 
@@ -251,30 +252,14 @@ class SeekProblem:
 
 
 def check_closed_loop(plant: ModalPlant, controller, margin: float = 1e-9) -> float:
-    """Spectral radius of the closed loop of ``plant``'s linear part under ``controller`` (servo rate).
-
-    The plant is discretised on the controller's sub-step (the one discretisation,
-    :meth:`ModalPlant.discretize`, delay line included) and the controller lifted to the servo
-    rate (:meth:`Controller.lifted_ss`); ``e = r - y`` with ``y`` sampled at the start of each
-    servo sample, as :func:`seekopt.drive.simulator.simulate_2dof` runs it.  Raises
-    :class:`ProblemError` (one line) when a closed-loop pole is on or outside the unit circle.
-    """
-    L = int(controller.fast_multiple)
-    dt = 1.0 / (float(controller.sample_rate_hz) * L)
-    Ap, Bp, Cp, _ = plant.linear_part().discretize(dt).augmented_ss()
-    Ac, Bc, Cc, Dc = controller.lifted_ss()
-    n_p, n_c = Ap.shape[0], Ac.shape[0]
-    # over one servo sample: x_p <- Ap^L x_p + sum_j Ap^(L-1-j) Bp u_j,  u_j = Cc[j] x_c - Dc[j] Cp x_p
-    Fx, Fc = np.linalg.matrix_power(Ap, L), np.zeros((n_p, n_c))
-    for j in range(L):
-        G = np.linalg.matrix_power(Ap, L - 1 - j) @ Bp
-        Fx = Fx - G @ (Dc[j:j + 1] @ Cp)
-        Fc = Fc + G @ Cc[j:j + 1]
-    Acl = np.block([[Fx, Fc], [-Bc @ Cp, Ac]])
-    eig = np.linalg.eigvals(Acl)
-    rho = float(np.max(np.abs(eig))) if eig.size else 0.0
+    """Spectral radius of the closed loop of ``plant``'s linear part under ``controller`` (servo rate):
+    the poles of :func:`seekopt.drive.loopcheck.closed_loop_poles` (the plant discretised as the
+    simulator runs it, the controller lifted to the servo rate).  Raises :class:`ProblemError` (one
+    line) when a pole is on or outside the unit circle."""
+    poles = closed_loop_poles(plant, controller)
+    rho = float(np.max(np.abs(poles))) if poles.size else 0.0
     if not math.isfinite(rho) or rho >= 1.0 - margin:
-        p = eig[np.argmax(np.abs(eig))]
+        p = poles[int(np.argmax(np.abs(poles)))] if poles.size else complex("nan")
         f = abs(np.angle(p)) * float(controller.sample_rate_hz) / (2 * math.pi)
         raise ProblemError(f"closed loop of the plant and controller {getattr(controller, 'name', '')!r} is "
                            f"unstable: pole |z| = {rho:.6g} at {f:.0f} Hz")
