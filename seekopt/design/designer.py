@@ -30,11 +30,13 @@ are not modelled by the optimiser; every design is re-checked on the full plant 
 """
 from __future__ import annotations
 
+import contextlib
 import math
 from collections import Counter
 from dataclasses import dataclass
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from identification.model.plant import ModalPlant
 
@@ -45,6 +47,7 @@ from seekopt.design.metrics import SeekMetrics, evaluate_profile, worst_case
 from seekopt.design.problem import ProblemError, SeekProblem, check_closed_loop
 from seekopt.design.profiles import Profile, finish_profile, reference_from_model, rigid_endpoint_matrix, t_bang_bang
 from seekopt.design.solvers import QPStatus, SolverChain
+from seekopt.design.working_set import WorkingSetQP
 
 __all__ = ["DesignInfeasible", "DesignError", "DesignResult", "SeekDesigner", "design_seek"]
 
@@ -94,14 +97,15 @@ class DesignResult:
 class _Stats:
     """Per-design solve bookkeeping."""
 
-    def __init__(self):
+    def __init__(self, primary: str):
+        self.primary = primary
         self.n, self.t, self.status, self.fallback, self.unresolved = 0, 0.0, "", 0, []
 
     def add(self, N: int, sol) -> None:
         self.n += 1
         self.t += sol.solve_time_s
         self.status = sol.status
-        if len(sol.attempts) > 1 and sol.outcome in (QPStatus.OPTIMAL, QPStatus.INFEASIBLE):
+        if sol.solver != self.primary and sol.outcome in (QPStatus.OPTIMAL, QPStatus.INFEASIBLE):
             self.fallback += 1
         if sol.outcome not in (QPStatus.OPTIMAL, QPStatus.INFEASIBLE):
             self.unresolved.append((N, " -> ".join(f"{a} {b} ({c})" for a, b, c in sol.attempts)))
@@ -157,6 +161,7 @@ class SeekDesigner:
         self.ignored_effects = [e.name for e in p.plant.effects if e.kind != "structural"]
         self._maps, self._maps_h = None, 0
         self._qps: dict = {}
+        self._ws: dict = {}             # working-set solver per structure
         self.builds, self.map_builds = 0, 0
         self.solver_builds: Counter = Counter()
 
@@ -212,15 +217,26 @@ class SeekDesigner:
         return [c for c in self.settings.size_classes if n_from <= c <= self.max_samples] or [self.max_samples]
 
     # ------------------------------------------------------------------ solving
+    def _working_set(self, qp: _qp.SeekQP) -> WorkingSetQP:
+        if qp not in self._ws:
+            s = self.settings
+            self._ws[qp] = WorkingSetQP(qp, lambda n, m: SolverChain(n, m, s.chain, s.options,
+                                                                     builds=self._count_solver))
+        return self._ws[qp]
+
     def _solve(self, qp: _qp.SeekQP, K, n, beta, stats: _Stats, warm=None, epigraph=False):
         hf_tol = self.hf_tol if self.guard_bands else None
-        data = qp.data(K, n, None if epigraph else beta, self.gamma, hf_tol, self.slew)
+        args = (K, n, None if epigraph else beta, self.gamma, hf_tol, self.slew)
         tol = self.settings.violation_tol
+        bounds = qp.bounds(*args)
 
-        def check(x):       # never trust a status alone: re-check the answer against the data
-            viol = qp.violation(x, K, *data[3:])
+        def check(x, A=None):       # never trust a status alone: re-check the answer against the data
+            viol = qp.violation(x, K, *bounds[1:], A=A)
             return f"constraint violation {viol:.2g}" if viol > tol else ""
-        sol = qp.solver.solve(*data, x0=warm, check=check)
+        if self.settings.working_set:
+            sol = self._working_set(qp).solve(*args, x0=warm, check=check)
+        else:
+            sol = qp.solver.solve(*qp.data(*args), x0=warm, check=check)
         stats.add(n, sol)
         return sol
 
@@ -246,7 +262,11 @@ class SeekDesigner:
         """Fewest seek samples for which currents, guard and rest-to-rest can be met (no band);
         -1 when none within the horizon (lengths no solver decides count as not feasible)."""
         K = self.check_seek(tracks)
-        stats = _Stats()
+        with self._blas():
+            return self._shortest_feasible(K)
+
+    def _shortest_feasible(self, K: float) -> int:
+        stats = _Stats(self.solver_name)
         epi = True          # the structure objective (a) uses
         lo = max(int(math.floor(t_bang_bang(K, self.plant.k0, self.imax) * self.fs)) - 1, 0)
         for c in self._classes(lo + 1):
@@ -266,7 +286,7 @@ class SeekDesigner:
 
     def _infeasible(self, K, n_req) -> DesignInfeasible:
         tbb = t_bang_bang(K, self.plant.k0, self.imax)
-        n = self.shortest_feasible(K)
+        n = self._shortest_feasible(K)
         what = (f"shortest feasible seek time is {n} samples ({n / self.fs * 1e3:.4g} ms)" if n > 0 else
                 f"no feasible seek within {self.max_samples} samples")
         return DesignInfeasible(f"seek of {K:g} tracks in {n_req} samples ({n_req / self.fs * 1e3:.4g} ms) "
@@ -277,15 +297,25 @@ class SeekDesigner:
         return DesignError(f"QP solvers {'/'.join(self.settings.chain)} failed without proof for {K:g} tracks "
                            f"{what}: {stats.why()}")
 
+    def _blas(self):
+        """BLAS thread limit for a design (:attr:`SolverSettings.blas_threads`)."""
+        n = self.settings.blas_threads
+        return threadpool_limits(limits=int(n), user_api="blas") if n else contextlib.nullcontext()
+
     def design(self, tracks: float, seek_samples: int | None = None) -> DesignResult:
         """Design the seek of ``tracks`` tracks.
 
         ``seek_samples=None``: minimum seek-settle time (objective (b)); an integer: minimum residual
         vibration for that seek length (objective (a)).  Raises :class:`DesignInfeasible` when the
-        request cannot be met and :class:`DesignError` when no verified design is found.
+        request cannot be met and :class:`DesignError` when no verified design is found.  Runs with
+        at most :attr:`SolverSettings.blas_threads` BLAS threads.
         """
         K = self.check_seek(tracks)
-        stats = _Stats()
+        with self._blas():
+            return self._design(K, seek_samples)
+
+    def _design(self, K: float, seek_samples: int | None) -> DesignResult:
+        stats = _Stats(self.solver_name)
         n_rigid = int(math.ceil(t_bang_bang(K, self.plant.k0, self.imax) * self.fs - 1e-9))
         if seek_samples is not None:
             N = int(seek_samples)
@@ -296,7 +326,7 @@ class SeekDesigner:
             sol = self._solve(qp, K, N, None, stats, epigraph=epi)
             if not sol.success:
                 if sol.infeasible:
-                    n_min = self.shortest_feasible(K)
+                    n_min = self._shortest_feasible(K)
                     if n_min < 0 or N < n_min:
                         raise self._infeasible(K, N)
                 raise self._failed(K, f"in {N} samples", stats)
@@ -317,8 +347,9 @@ class SeekDesigner:
         else:
             if stats.unresolved:
                 raise self._failed(K, f"within {self.max_samples} samples", stats)
+            tbb = t_bang_bang(K, self.plant.k0, self.imax)
             raise DesignInfeasible(f"seek of {K:g} tracks cannot settle within {self.max_samples} samples "
-                                   f"at Imax {self.imax:g} A (T_bb = {t_bang_bang(K, self.plant.k0, self.imax) * 1e3:.4g} ms)")
+                                   f"at Imax {self.imax:g} A (T_bb = {tbb * 1e3:.4g} ms)")
         hi, best = c, sol
         while hi - lo > 1:
             mid = (lo + hi) // 2

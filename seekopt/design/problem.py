@@ -18,6 +18,7 @@ from identification.model.plant import ModalPlant, atomic_write_text
 
 from seekopt.design.robust import RobustSpec
 from seekopt.design.solvers import QP_PLUGINS
+from seekopt.drive.loopcheck import closed_loop_poles
 
 __all__ = ["ProblemError", "SolverSettings", "SeekProblem", "check_closed_loop", "SIZE_CLASSES"]
 
@@ -57,16 +58,27 @@ class SolverSettings:
         1.3 ms later at K = 3000).
     violation_tol : float
         Largest relative constraint violation accepted from a solver's answer.
+    working_set : bool
+        Solve each QP on a working set of its rows, adding back violated rows
+        (:class:`seekopt.design.working_set.WorkingSetQP`; the same optimum on far fewer rows).  Off by
+        default: a reduced "infeasible" must be confirmed on the full QP (daqp has reported -1 on
+        reduced QPs that other solvers solve), which cancels the gain (``studies/design_speed.py``).
+    blas_threads : int or None
+        BLAS threads while designing (``threadpoolctl``; None: leave as is).  The design's matrices
+        are small: with 2 OpenBLAS threads on this 2-core machine three robust designs took 8-12 s
+        CPU, with 1 thread 1.3-1.6 s (same designs).
     """
 
     qp_solver: str = "daqp"
-    fallbacks: tuple = ("qpoases",)
+    fallbacks: tuple = ("qpoases", "highs")
     options: dict = field(default_factory=dict)
     max_samples: int = 512
     size_classes: tuple = SIZE_CLASSES
     thin_above_samples: int = 128
     thin_stride: int = 2
     violation_tol: float = 1e-3
+    working_set: bool = False
+    blas_threads: int | None = 1
 
     def __post_init__(self):
         self.fallbacks = tuple(self.fallbacks)
@@ -272,30 +284,14 @@ def _robust_from_dict(d: dict):
 
 
 def check_closed_loop(plant: ModalPlant, controller, margin: float = 1e-9) -> float:
-    """Spectral radius of the closed loop of ``plant``'s linear part under ``controller`` (servo rate).
-
-    The plant is discretised on the controller's sub-step (the one discretisation,
-    :meth:`ModalPlant.discretize`, delay line included) and the controller lifted to the servo
-    rate (:meth:`Controller.lifted_ss`); ``e = r - y`` with ``y`` sampled at the start of each
-    servo sample, as :func:`seekopt.drive.simulator.simulate_2dof` runs it.  Raises
-    :class:`ProblemError` (one line) when a closed-loop pole is on or outside the unit circle.
-    """
-    L = int(controller.fast_multiple)
-    dt = 1.0 / (float(controller.sample_rate_hz) * L)
-    Ap, Bp, Cp, _ = plant.linear_part().discretize(dt).augmented_ss()
-    Ac, Bc, Cc, Dc = controller.lifted_ss()
-    n_p, n_c = Ap.shape[0], Ac.shape[0]
-    # over one servo sample: x_p <- Ap^L x_p + sum_j Ap^(L-1-j) Bp u_j,  u_j = Cc[j] x_c - Dc[j] Cp x_p
-    Fx, Fc = np.linalg.matrix_power(Ap, L), np.zeros((n_p, n_c))
-    for j in range(L):
-        G = np.linalg.matrix_power(Ap, L - 1 - j) @ Bp
-        Fx = Fx - G @ (Dc[j:j + 1] @ Cp)
-        Fc = Fc + G @ Cc[j:j + 1]
-    Acl = np.block([[Fx, Fc], [-Bc @ Cp, Ac]])
-    eig = np.linalg.eigvals(Acl)
-    rho = float(np.max(np.abs(eig))) if eig.size else 0.0
+    """Spectral radius of the closed loop of ``plant``'s linear part under ``controller`` (servo rate):
+    the poles of :func:`seekopt.drive.loopcheck.closed_loop_poles` (the plant discretised as the
+    simulator runs it, the controller lifted to the servo rate).  Raises :class:`ProblemError` (one
+    line) when a pole is on or outside the unit circle."""
+    poles = closed_loop_poles(plant, controller)
+    rho = float(np.max(np.abs(poles))) if poles.size else 0.0
     if not math.isfinite(rho) or rho >= 1.0 - margin:
-        p = eig[np.argmax(np.abs(eig))]
+        p = poles[int(np.argmax(np.abs(poles)))] if poles.size else complex("nan")
         f = abs(np.angle(p)) * float(controller.sample_rate_hz) / (2 * math.pi)
         raise ProblemError(f"closed loop of the plant and controller {getattr(controller, 'name', '')!r} is "
                            f"unstable: pole |z| = {rho:.6g} at {f:.0f} Hz")

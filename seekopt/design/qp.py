@@ -292,10 +292,16 @@ class SeekQP:
         w = 2 * w_e / E0.shape[0]
         self._P0, self._P1, self._P2 = P + w * E0.T @ E0, w * (E0.T @ E1 + E1.T @ E0), w * E1.T @ E1
         self._q1, self._q2 = w * E0.T @ e1, w * E1.T @ e1   # g = K q1 + K|K| q2
-        self._dm = {k: dm(v) for k, v in (("A0", self.A0), ("A1", self.A1), ("P0", self._P0),
-                                          ("P1", self._P1), ("P2", self._P2))}
+        self._dm_cache = None      # casadi copies of the full matrices, made on first full solve
         self.solver = solver(n, self.m)
         self.build_time_s = time.perf_counter() - t_build
+
+    @property
+    def _dm(self) -> dict:
+        if self._dm_cache is None:
+            self._dm_cache = {k: dm(v) for k, v in (("A0", self.A0), ("A1", self.A1), ("P0", self._P0),
+                                                    ("P1", self._P1), ("P2", self._P2))}
+        return self._dm_cache
 
     # ------------------------------------------------------------------ per design
     def data(self, K: float, nseek: int, beta: float | None, gamma: float, hf_tol: float | None,
@@ -305,13 +311,25 @@ class SeekQP:
         ``beta``: settle-band fraction on ``k >= nseek`` (None: band rows free); ``gamma``: current
         fraction of ``Imax``; ``hf_tol``: guard tolerance in bands.
         """
-        aK, sK = abs(K), np.sign(K)
+        aK = abs(K)
+        g, lba, uba, lbx, ubx = self.bounds(K, nseek, beta, gamma, hf_tol, slew_a_per_s)
+        H = self._dm["P0"] + aK * self._dm["P1"] + aK * aK * self._dm["P2"]
+        A = self._dm["A0"] + aK * self._dm["A1"]
+        return H, g, A, lba, uba, lbx, ubx
+
+    def matrices(self, K: float):
+        """``(H, A)`` of a seek of ``K`` tracks as numpy arrays (for reduced problems)."""
+        aK = abs(K)
+        return self._P0 + aK * self._P1 + aK * aK * self._P2, self.A0 + aK * self.A1
+
+    def bounds(self, K: float, nseek: int, beta: float | None, gamma: float, hf_tol: float | None,
+               slew_a_per_s: float | None = None):
+        """``(g, lba, uba, lbx, ubx)`` (numpy) of :meth:`data`."""
+        aK = abs(K)
         N, n = self.N, self.n
         if not 0 < nseek <= N:
             raise ValueError(f"nseek {nseek} outside 1..{N}")
-        H = self._dm["P0"] + aK * self._dm["P1"] + aK * aK * self._dm["P2"]
         g = K * self._q1 + K * aK * self._q2
-        A = self._dm["A0"] + aK * self._dm["A1"]
         c = self.c0 + K * self.c1
         lba = np.full(self.m, -np.inf); uba = np.full(self.m, np.inf)
         kind, smp, pl = self.kind, self.sample, self.plant_idx
@@ -338,14 +356,15 @@ class SeekQP:
             lbx[N:N + nseek], ubx[N:N + nseek] = -2.0, 2.0
         if self.nt:
             lbx[-1], ubx[-1] = 0.0, np.inf
-        return H, g, A, lba, uba, lbx, ubx
+        return g, lba, uba, lbx, ubx
 
-    def violation(self, x: np.ndarray, K: float, lba, uba, lbx, ubx) -> float:
+    def violation(self, x: np.ndarray, K: float, lba, uba, lbx, ubx, A=None) -> float:
         """Largest constraint violation of ``x`` relative to the size of the terms summed in each
-        row (``max(1, sum_j |a_ij x_j|)``: the cancellation level) -- re-checks a solver's answer."""
+        row (``max(1, sum_j |a_ij x_j|)``: the cancellation level) -- re-checks a solver's answer.
+        ``A``: the constraint matrix at ``K`` when already at hand."""
         if not np.all(np.isfinite(x)):
             return float("inf")
-        A = self.A0 + abs(K) * self.A1
+        A = self.A0 + abs(K) * self.A1 if A is None else A
         ax = A @ x
         scale = np.maximum(1.0, np.abs(A) @ np.abs(x))
         v = np.concatenate([(lba - ax) / scale, (ax - uba) / scale, lbx - x, x - ubx])

@@ -290,11 +290,12 @@ class SolverChain:
                 self._on_build(name)
         return self._solvers[name]
 
-    def solve(self, *data, x0=None, check=None) -> QPSolution:
-        """Solve ``data = (H, g, A, lba, uba, lbx, ubx)``; ``x0`` warm-starts the primary only;
-        ``check(x)`` returns a note (str) when ``x`` fails the caller's re-check, else ''."""
+    def solve(self, *data, x0=None, check=None, start: int = 0) -> QPSolution:
+        """Solve ``data = (H, g, A, lba, uba, lbx, ubx)``; ``x0`` warm-starts the first solver only;
+        ``check(x)`` returns a note (str) when ``x`` fails the caller's re-check, else ''; ``start``
+        skips the first solvers of the chain (a second opinion)."""
         attempts, sol, wall, cpu = [], None, 0.0, 0.0
-        for i, name in enumerate(self.names):
+        for i, name in enumerate(self.names[start:]):
             sol = self.get(name).solve(*data, x0=x0 if i == 0 else None)
             wall, cpu = wall + sol.solve_time_s, cpu + sol.cpu_time_s
             if sol.outcome is QPStatus.OPTIMAL and check is not None:
