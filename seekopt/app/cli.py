@@ -355,7 +355,8 @@ def _identify_one(args, path, log, output, figures):
     from identification.estimate.identify import identify
     from identification.logs.checks import k0_warning
     from identification.logs.seeklog import segment_seeks
-    with progress(args, f"identifying the plant of {path} from {len(segment_seeks(log))} seeks ({args.method})"):
+    which = f"of {path} " if len(getattr(args, "log", [])) > 1 else ""
+    with progress(args, f"identifying the plant {which}from {len(segment_seeks(log))} seeks ({args.method})"):
         res = identify(log, method=args.method)
     p, sd = res.plant, res.plant.std
     w = k0_warning(p.k0, str(path))
