@@ -176,3 +176,62 @@ def test_cli_design_family_and_drift(tmp_path, capsys):
     assert main(["design", "--plant", str(a), "--tracks", "20", "--imax", "0.3", "-o", str(bad),
                  "--drift", "temp=±4%", "--robust", "freq=5"]) == 2
     assert not bad.exists()
+
+
+def test_sweep_and_export_take_a_family(tmp_path):
+    from seekopt.evaluate.sweep import SweepConfig, run_sweep
+    from seekopt.export.tables import load_tables, write_tables
+    nom, cold = simple(), drifted(simple(), 0.04, -0.2, 0.05)
+    cfg = SweepConfig(nom, Controller.nss(), [100e3], [20], 0.3, designer="ocp", family=[cold])
+    plain = SweepConfig(nom, Controller.nss(), [100e3], [20], 0.3, designer="ocp")
+    assert "family" not in plain.identity() and cfg.hash() != plain.hash()
+    again = SweepConfig.from_dict(json.loads(json.dumps(cfg.to_dict())))
+    assert again.hash() == cfg.hash() and len(again.family) == 1
+    s = run_sweep(cfg, tmp_path / "sw", engine="serial", progress=False, figures=False)
+    assert s.computed == 1 and not s.failed_cells
+    cell = json.loads(next((tmp_path / "sw" / "cells").glob("*.json")).read_text())
+    meta = cell["optimal_profile"]          # the profile's header: metadata keys at the top level
+    assert meta["predicted_settle_members_ms"].startswith("nominal=") and "member 1" in meta["predicted_settle_members_ms"]
+    ts = load_tables(tmp_path / "sw")
+    assert ts.meta["family_hashes"] == cold.at_tpi(100e3).hash() or ts.meta["family_hashes"] == cold.hash()
+    paths = write_tables(ts, "c", tmp_path / "fw")
+    assert "holds the plant family" in paths[0].read_text()
+
+
+def test_cli_identify_several_logs_gives_a_family(tmp_path, capsys):
+    from identification.logs.seeklog import write_log
+    from seekopt.evaluate.synth import SynthConfig, synthesize
+    logs = []
+    for name, t, seed in (("room", 0.0, 0), ("cold", 0.04, 1)):
+        truth = drifted(simple(), t, -5 * t, 0.0)
+        log, _ = synthesize(SynthConfig(n_seeks=16, seed=seed, max_tracks=2000.0, rro=False), plant=truth)
+        path = tmp_path / f"{name}.npz"
+        write_log(log, path)
+        logs.append(str(path))
+    assert main(["identify", *logs, "-o", str(tmp_path / "plants.json")]) == 2     # one file for two logs
+    assert "several logs need a folder" in capsys.readouterr().err
+    assert main(["identify", *logs, "-o", str(tmp_path / "plants"), "--quiet"]) == 0
+    text = capsys.readouterr().out
+    assert "family of 2 plants, relative to room.npz" in text and "cold.npz: frequencies x1.04" in text
+    assert "blind (a mode of gain 0.05 would escape detection)" in text
+    p = ModalPlant.load(tmp_path / "plants" / "cold.json")
+    assert p.meta["blind_bands"][-1]["reason"] == "above the identification range"
+
+
+def test_temperature_family_design_beats_the_paper_on_every_member():
+    """The default truth at three temperatures (x1.04 / x0.8 / gain x1.05, room, x0.96 / x1.2 /
+    x0.95), the exact plants as the family, K = 200: on every member (its drive calibrating its gain) at
+    most 0.7 x the better of the shortest sine and windowed sine played on that member."""
+    from seekopt.design.baselines import baseline_profile
+    from seekopt.drive.presets import default_truth_plant
+    ctrl, K = Controller.nss(), 200.0
+    room = default_truth_plant()
+    cold, hot = drifted(room, 0.04, -0.2, 0.05), drifted(room, -0.04, 0.2, -0.05)
+    res = SeekDesigner(SeekProblem(room, ctrl, 0.3, robust=Drift(), family=[cold, hot])).design(K)
+    for m in (room, cold, hot):
+        mc = calibrated(m, room.k0)
+        t = evaluate_profile(mc, ctrl, played_on(res.profile, mc)).settle_time_s
+        base = min(evaluate_profile(mc, ctrl, played_on(baseline_profile(room, FS, k, K, 0.3), mc)).settle_time_s
+                   for k in ("sine", "windowed_sine"))
+        assert t <= 0.7 * base
+        assert t <= res.prediction.worst_metrics.settle_time_s * 1.2

@@ -62,7 +62,8 @@ def _segments(log: SeekLog, min_len: int):
 
 
 def detectable_gain(log: SeekLog, plant: ModalPlant, freqs_hz=None, *, zeta: float = 0.01, t_min: float = 5.0,
-                    ar_order: int = 32, nw_lags: int = 32, chunk: int = 16, runout=None, calibrate: bool = True):
+                    ar_order: int = 32, nw_lags: int = 32, chunk: int = 16, runout=None, calibrate: bool = True,
+                    max_rows: int = 200_000):
     """Smallest mode gain ``g_min(f)`` (relative to the rigid body) the log reveals at ``t_min``.
 
     Parameters
@@ -81,7 +82,9 @@ def detectable_gain(log: SeekLog, plant: ModalPlant, freqs_hz=None, *, zeta: flo
     ar_order : int
         Order of the AR noise model.
     chunk : int
-        Frequencies per batch (memory: ``chunk`` regressors of the log's length).
+        Frequencies per batch (memory: about 8 ``chunk`` regressors of ``max_rows`` samples).
+    max_rows : int
+        Longest stretch of seeks used (the first seeks; the std is scaled by ``sqrt(used / all)``).
     runout : dict, optional
         The identified repeatable run-out (``Identification.diagnostics["runout"]``), removed from the
         residual.
@@ -103,6 +106,16 @@ def detectable_gain(log: SeekLog, plant: ModalPlant, freqs_hz=None, *, zeta: flo
     segs = _segments(log, ar_order + 16)
     if not segs:
         return Detectability(f, np.full(f.shape, np.inf), 1.0)
+    # a long log: the first seeks holding about ``max_rows`` samples, the std scaled by sqrt(used / all)
+    # (a gain's std falls as 1 / sqrt(samples); the calibration below absorbs any difference)
+    total = sum(b - a for a, b in segs)
+    used, n_used = [], 0
+    for a, b in segs:
+        if n_used >= max_rows:
+            break
+        used.append((a, b))
+        n_used += b - a
+    segs, row_scale = used, math.sqrt(n_used / total)
     pred = predict_segments(log, plant, segs, runout=runout)
     resid = [log.position_track[a:b] - p for (a, b), p in zip(segs, pred)]
     A = ar_whitener(resid, ar_order) if ar_order else np.ones(1)
@@ -112,7 +125,7 @@ def detectable_gain(log: SeekLog, plant: ModalPlant, freqs_hz=None, *, zeta: flo
     w = np.concatenate([signal.lfilter(A, 1.0, e)[p:] for e in resid])
     bounds = np.r_[0, np.cumsum([b - a - p for a, b in segs])]
     sigma = float(np.std(w))
-    u = log.input_current()
+    u = log.input_current()[:segs[-1][1]]          # causal filters: the samples after the last seek used add nothing
 
     def gain_std(fc, zc):
         """Std of a unit-gain mode's gain at ``fc`` with damping ``zc`` (frequency, damping free)."""
@@ -136,14 +149,14 @@ def detectable_gain(log: SeekLog, plant: ModalPlant, freqs_hz=None, *, zeta: flo
     g = np.empty(f.shape)
     for i0 in range(0, f.size, chunk):
         fc = f[i0:i0 + chunk]
-        g[i0:i0 + chunk] = t_min * gain_std(fc, np.full(fc.size, zeta))
+        g[i0:i0 + chunk] = t_min * gain_std(fc, np.full(fc.size, zeta)) * row_scale
     # calibration on the identified modes: the std this estimate gives them against the std the
     # identification reported (its fit also frees the other modes, the delay, the run-out...)
     fmax = 0.45 * fs
     ref = [m for m in plant.modes if m.freq_hz < fmax and (m.std or {}).get("gain", 0) > 0]
     factor = 1.0
     if calibrate and ref:
-        est = gain_std(np.array([m.freq_hz for m in ref]), np.array([m.zeta for m in ref]))
+        est = gain_std(np.array([m.freq_hz for m in ref]), np.array([m.zeta for m in ref])) * row_scale
         ratios = [m.std["gain"] / e for m, e in zip(ref, est) if np.isfinite(e) and e > 0]
         factor = max([1.0] + ratios)
     return Detectability(f, g * factor, factor)

@@ -125,7 +125,9 @@ class Drift:
     n_sigma : float
         Floor of every range in reported standard deviations.
     n_samples : int
-        Orthogonal-array rows over the independent per-mode ranges (0: none).
+        Orthogonal-array rows over the independent per-mode ranges (default 0: the per-mode corners --
+        every mode at + its range, every mode at - -- only; on the NSS-like drive and its temperature
+        family 7 rows cost 2 samples at K = 200 and no truth plant, shifted or not, needed them).
     nyquist_guard : float
         Modes above ``nyquist_guard * fs / 2`` get no per-mode range (aliased near Nyquist, their
         reported std says little; the unmodelled-mode guard covers that band); the common drifts still
@@ -144,7 +146,7 @@ class Drift:
     modes: dict = field(default_factory=dict)
     ffgain_pct: float | None = None
     n_sigma: float = 3.0
-    n_samples: int = 7
+    n_samples: int = 0
     nyquist_guard: float = 0.9
     objective: str = "worst"
     seed: int = 0
