@@ -18,7 +18,7 @@ import numpy as np
 
 __all__ = ["seek_settle_s", "plot_sweep", "plot_seek_settle_vs_length", "plot_gain_over_baselines",
            "plot_heatmap", "plot_vs_tpi", "savings_table", "markdown_table", "write_report",
-           "KIND_LABELS"]
+           "KIND_LABELS", "compare_fit", "COMPARE_DEFINITION", "embed_images"]
 
 KIND_LABELS = {"optimal": "optimal", "sine": "sine", "windowed_sine": "windowed sine",
                "sine_tuned": "sine (best T)", "windowed_sine_tuned": "windowed sine (best T)",
@@ -26,6 +26,65 @@ KIND_LABELS = {"optimal": "optimal", "sine": "sine", "windowed_sine": "windowed 
 _KIND_STYLE = {"optimal": ("C3", "-", "o"), "sine": ("C0", "--", "s"), "windowed_sine": ("C2", ":", "^"),
                "sine_tuned": ("C1", "-.", "D"), "windowed_sine_tuned": ("C4", (0, (5, 1, 1, 1)), "v")}
 _BASELINES = ("sine", "windowed_sine", "sine_tuned", "windowed_sine_tuned")
+
+
+COMPARE_DEFINITION = (
+    "Fit % is defined as MATLAB's `compare` does (NRMSE): fit = 100 (1 - ||y - ŷ|| / ||y - mean(y)||), "
+    "per settle window, with y the measured PES after the seek settled (from the settling point N, the "
+    "first sample after which |PES| stays within the band, to the next seek) and ŷ the PES of the model "
+    "simulated from the measured current (effects included). The simulation is seek-anchored: it starts at "
+    "the seek's start, with the initial position and velocity fitted by least squares over the whole seek, "
+    "and is not corrected inside the window. 100 % is a perfect prediction, 0 % predicts no better than the "
+    "window's mean, and a negative fit means the model's error is larger than the PES's own variation "
+    "about its mean.")
+
+
+def compare_fit(residual, band: float = 0.1):
+    """Per-window NRMSE fit [%] of the settle PES, as MATLAB's ``compare`` defines it.
+
+    Parameters
+    ----------
+    residual : identification.loop.residual.Residual
+        A seek-anchored simulation of a model from the measured current (``y_sim`` [track] on the
+        full log grid, ``windows`` with one group per seek), e.g. ``LoopResult.res_before`` /
+        ``res_after`` of :func:`identification.loop.closing.close_loop`.
+    band : float
+        Settle band [track] that defines the settling point ``N``.
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per settled seek: ``start`` (log index), ``settle`` (``N``), ``end``,
+        ``fit_percent`` ``= 100 (1 - ||y - y_hat|| / ||y - mean(y)||)`` with ``y`` the measured PES
+        on ``[N, end)`` and ``y_hat`` the simulated PES there (:data:`COMPARE_DEFINITION`), and
+        ``pes_rms_track`` / ``error_rms_track`` (RMS of ``y - mean(y)`` and of ``y - y_hat``).
+    """
+    import pandas as pd
+    from seekopt.design.metrics import settle_index
+    log, w = residual.log, residual.windows
+    pes = log.position_track - log.target_track
+    spans = {}
+    for (a, b), g in zip(w.bounds, w.groups):
+        lo, hi = spans.get(g, (a, b))
+        spans[g] = (min(lo, a), max(hi, b))
+    rows = []
+    for a, b in spans.values():
+        n = settle_index(pes[a:b], band)
+        if n is None or b - (a + n) < 4:
+            continue
+        k = slice(a + n, b)
+        y, yh = pes[k], residual.y_sim[k] - log.target_track[k]
+        ok = np.isfinite(yh)
+        if ok.sum() < 4:
+            continue
+        y, yh = y[ok], yh[ok]
+        den = float(np.linalg.norm(y - y.mean()))
+        err = float(np.linalg.norm(y - yh))
+        rows.append({"start": a, "settle": a + n, "end": b,
+                     "fit_percent": 100.0 * (1.0 - err / den) if den > 0 else float("nan"),
+                     "pes_rms_track": den / np.sqrt(y.size), "error_rms_track": err / np.sqrt(y.size)})
+    return pd.DataFrame(rows, columns=["start", "settle", "end", "fit_percent", "pes_rms_track",
+                                       "error_rms_track"])
 
 
 def _plt():
