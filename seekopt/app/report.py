@@ -18,7 +18,7 @@ import numpy as np
 
 __all__ = ["seek_settle_s", "plot_sweep", "plot_seek_settle_vs_length", "plot_gain_over_baselines",
            "plot_heatmap", "plot_vs_tpi", "savings_table", "markdown_table", "write_report",
-           "KIND_LABELS", "compare_fit", "COMPARE_DEFINITION", "embed_images"]
+           "KIND_LABELS", "compare_fit", "COMPARE_DEFINITION", "plot_frequency_response"]
 
 KIND_LABELS = {"optimal": "optimal", "sine": "sine", "windowed_sine": "windowed sine",
                "sine_tuned": "sine (best T)", "windowed_sine_tuned": "windowed sine (best T)",
@@ -277,6 +277,30 @@ def plot_sweep(df, outdir) -> list[Path]:
     return paths
 
 
+def plot_frequency_response(plants: dict, path, f_lo_hz: float = 30.0) -> Path:
+    """Magnitude [track/A] and phase [deg] of each plant's frequency response (``{label: ModalPlant}``,
+    delay included) from ``f_lo_hz`` to the Nyquist frequency of the first plant."""
+    plt = _plt()
+    first = next(iter(plants.values()))
+    f_hi = 0.5 * (first.sample_rate_hz or 26400.0)
+    f = np.logspace(np.log10(f_lo_hz), np.log10(f_hi), 1200)
+    fig, (am, ap) = plt.subplots(2, 1, figsize=(7.5, 6.0), sharex=True)
+    styles = [("C3", "-", 1.4), ("C0", "-", 0.9), ("k", "--", 0.9), ("C2", ":", 0.9)]
+    for (label, p), (c, ls, lw) in zip(plants.items(), styles):
+        h = p.frf(f)
+        am.loglog(f, np.abs(h), color=c, ls=ls, lw=lw, label=label)
+        ap.semilogx(f, np.degrees(np.unwrap(np.angle(h))), color=c, ls=ls, lw=lw, label=label)
+    am.set_ylabel("|P(j2πf)| [track/A]")
+    ap.set_ylabel("phase [deg]")
+    ap.set_xlabel("frequency [Hz]")
+    am.set_title("Plant frequency response (delay included)")
+    for a in (am, ap):
+        a.grid(True, which="both", alpha=0.3)
+    am.legend(fontsize=8)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
 def _save(fig, path) -> Path:
     plt = _plt()
     path = Path(path)
@@ -311,8 +335,9 @@ def markdown_table(df, columns=None, headers=None, fmt: str = ".3g") -> str:
 def write_report(outdir, title: str, sections: list, html_too: bool = True) -> Path:
     """Write ``report.md`` (and ``report.html``) into ``outdir``.
 
-    ``sections`` is a list of ``(heading, markdown_text, [figure paths])``; figure
-    paths are linked relative to ``outdir``.
+    ``sections`` is a list of ``(heading, markdown_text, [figure paths])``; in ``report.md`` figure
+    paths are linked relative to ``outdir``, in ``report.html`` the PNGs are embedded as base64
+    ``data:`` URIs (a self-contained file that can be mailed).
     """
     outdir = Path(outdir)
     md = [f"# {title}\n"]
@@ -324,12 +349,18 @@ def write_report(outdir, title: str, sections: list, html_too: bool = True) -> P
     path = outdir / "report.md"
     path.write_text("".join(md))
     if html_too:
-        (outdir / "report.html").write_text(_md_to_html(title, "".join(md)))
+        (outdir / "report.html").write_text(_md_to_html(title, "".join(md), outdir))
     return path
 
 
-def _md_to_html(title: str, md: str) -> str:
-    """Minimal Markdown subset (headings, tables, images, paragraphs, code) to HTML."""
+def _data_uri(path: Path) -> str:
+    import base64
+    return "data:image/png;base64," + base64.b64encode(Path(path).read_bytes()).decode("ascii")
+
+
+def _md_to_html(title: str, md: str, root=".") -> str:
+    """Minimal Markdown subset (headings, tables, images, paragraphs, lists, code) to HTML; images
+    (paths relative to ``root``) are embedded as base64 data URIs; wide tables scroll."""
     import re
     out, table, para = [], [], []
 
@@ -344,7 +375,7 @@ def _md_to_html(title: str, md: str) -> str:
             cells = [[c.strip() for c in r.strip("|").split(" | ")] for r in rows]
             body = "".join("<tr>" + "".join(f"<{'th' if i == 0 else 'td'}>{inline(c)}</{'th' if i == 0 else 'td'}>"
                                             for c in r) + "</tr>" for i, r in enumerate(cells))
-            out.append(f"<table>{body}</table>")
+            out.append(f"<div class='wide'><table>{body}</table></div>")
             table.clear()
         if para:
             out.append("<p>" + inline(" ".join(para)) + "</p>")
@@ -362,12 +393,15 @@ def _md_to_html(title: str, md: str) -> str:
             n = len(line) - len(line.lstrip("#"))
             out.append(f"<h{n}>{inline(line[n:].strip())}</h{n}>")
         elif m:
-            out.append(f'<p><img src="{html.escape(m.group(2))}" alt="{html.escape(m.group(1))}" '
+            out.append(f'<p><img src="{_data_uri(Path(root) / m.group(2))}" alt="{html.escape(m.group(1))}" '
                        'style="max-width:100%"></p>')
+        elif line.startswith("- "):
+            out.append(f"<ul><li>{inline(line[2:].strip())}</li></ul>")
         elif line.strip():
             para.append(line.strip())
     flush()
     style = ("body{font-family:sans-serif;max-width:70em;margin:auto}table{border-collapse:collapse}"
-             "td,th{border:1px solid #ccc;padding:2px 6px;text-align:right}")
+             "td,th{border:1px solid #ccc;padding:2px 6px;text-align:right}.wide{overflow-x:auto;max-width:100%}"
+             "img{max-width:100%}")
     return (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
             f"<style>{style}</style></head><body>{''.join(out)}</body></html>\n")
