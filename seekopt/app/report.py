@@ -57,7 +57,8 @@ def compare_fit(residual, band: float = 0.1):
         One row per settled seek: ``start`` (log index), ``settle`` (``N``), ``end``,
         ``fit_percent`` ``= 100 (1 - ||y - y_hat|| / ||y - mean(y)||)`` with ``y`` the measured PES
         on ``[N, end)`` and ``y_hat`` the simulated PES there (:data:`COMPARE_DEFINITION`), and
-        ``pes_rms_track`` / ``error_rms_track`` (RMS of ``y - mean(y)`` and of ``y - y_hat``).
+        ``pes_rms_track`` / ``error_rms_track`` (RMS of ``y - mean(y)`` and of ``y - y_hat``),
+        ``error_trend_rms_track`` (RMS of the straight line, offset + drift, fitted to ``y - y_hat``).
     """
     import pandas as pd
     from seekopt.design.metrics import settle_index
@@ -80,11 +81,15 @@ def compare_fit(residual, band: float = 0.1):
         y, yh = y[ok], yh[ok]
         den = float(np.linalg.norm(y - y.mean()))
         err = float(np.linalg.norm(y - yh))
+        t = np.arange(y.size, dtype=float)
+        V = np.column_stack([np.ones_like(t), t])
+        trend = V @ np.linalg.lstsq(V, y - yh, rcond=None)[0]
         rows.append({"start": a, "settle": a + n, "end": b,
                      "fit_percent": 100.0 * (1.0 - err / den) if den > 0 else float("nan"),
-                     "pes_rms_track": den / np.sqrt(y.size), "error_rms_track": err / np.sqrt(y.size)})
+                     "pes_rms_track": den / np.sqrt(y.size), "error_rms_track": err / np.sqrt(y.size),
+                     "error_trend_rms_track": float(np.linalg.norm(trend)) / np.sqrt(y.size)})
     return pd.DataFrame(rows, columns=["start", "settle", "end", "fit_percent", "pes_rms_track",
-                                       "error_rms_track"])
+                                       "error_rms_track", "error_trend_rms_track"])
 
 
 def _plt():
@@ -289,7 +294,8 @@ def plot_frequency_response(plants: dict, path, f_lo_hz: float = 30.0) -> Path:
     for (label, p), (c, ls, lw) in zip(plants.items(), styles):
         h = p.frf(f)
         am.loglog(f, np.abs(h), color=c, ls=ls, lw=lw, label=label)
-        ap.semilogx(f, np.degrees(np.unwrap(np.angle(h))), color=c, ls=ls, lw=lw, label=label)
+        ph = np.degrees(np.unwrap(np.angle(h)))
+        ap.semilogx(f, ph - 360.0 * np.round(ph[0] / 360.0 + 0.5), color=c, ls=ls, lw=lw, label=label)
     am.set_ylabel("|P(j2πf)| [track/A]")
     ap.set_ylabel("phase [deg]")
     ap.set_xlabel("frequency [Hz]")
