@@ -7,8 +7,7 @@ returning a small result object; a failing stage stops the demo with a one-line 
 1. **log** -- read the log (default: the bundled synthetic ``seekopt/data/sample_log.npz``, 120 seeks
    of ``seekopt synth``; its truth plant is bundled beside it);
 2. **identify** -- :func:`identification.estimate.identify.identify` (``examples/identify_a_log.py``);
-3. **close the loop** -- :func:`identification.loop.closing.close_loop` on the first ``loop_seeks``
-   seeks (``examples/close_the_loop.py``);
+3. **close the loop** -- :func:`identification.loop.closing.close_loop` (``examples/close_the_loop.py``);
 4. **design & bench** -- one robust :class:`seekopt.design.ocp.SeekDesigner` built once, called for each
    seek length, benched against sine / windowed sine by :func:`seekopt.evaluate.bench.run_bench` on the
    truth plant when known, else on the identified plant (``examples/design_and_bench.py``);
@@ -18,9 +17,10 @@ returning a small result object; a failing stage stops the demo with a one-line 
 7. **report** -- a self-contained ``report.html`` (figures embedded) and ``report.md``
    (:func:`seekopt.app.demo_report.demo_report`).
 
-Speed (``seekopt demo`` <= 3 min on an idle 2-core machine): the loop is fed the first 60 seeks
-(``loop_seeks``; the other stages see all 120), the design and sweep lengths stop at 1000 tracks (a
-robust 3000-track design alone takes tens of seconds), and the designer is built once for the bench.
+Speed (``seekopt demo`` <= 3 min on an idle 2-core machine): the design and sweep lengths stop at 1000
+tracks (a robust 3000-track design alone takes tens of seconds), the designer is built once for the
+bench, and the sweep runs in a two-worker process pool while the bench runs in this process.  Each
+stage's CPU time is logged beside its wall time (on a shared machine the wall time says little).
 """
 from __future__ import annotations
 
@@ -60,7 +60,7 @@ class DemoConfig:
     workers: int = 2
     html: bool = True
     max_seeks: int | None = None
-    loop_seeks: int = 60
+    loop_seeks: int | None = None
 
     def __post_init__(self):
         if self.quick:
@@ -80,10 +80,10 @@ def sample_truth():
     return ModalPlant.load(sample_log_path().with_suffix(".truth.json"))
 
 
-def first_seeks(log, n: int):
-    """The log up to the start of its ``n+1``-th seek (target change)."""
+def first_seeks(log, n: int | None):
+    """The log up to the start of its ``n+1``-th seek (target change); the whole log if ``n`` is None."""
     starts = np.nonzero(np.diff(log.target_track) != 0)[0] + 1
-    return log if len(starts) <= n else log.slice(0, int(starts[n]))
+    return log if n is None or len(starts) <= n else log.slice(0, int(starts[n]))
 
 
 def loop_is_stable(plant, controller, n: int = 3000) -> bool:
@@ -143,7 +143,8 @@ class DemoResult:
     bench: BenchStage
     sweep: SweepStage
     export: ExportStage
-    stages: list = field(default_factory=list)     # (name, status, seconds, note)
+    stages: list = field(default_factory=list)     # (name, status, wall s, note, CPU s of this process)
+    cpu_s: float = float("nan")                    # CPU of this process and its (reaped) sweep workers [s]
     report: Path | None = None
 
 
@@ -160,15 +161,17 @@ def identify_plant(log) -> IdentifyStage:
     return IdentifyStage(ident, plant)
 
 
-def close_loop(log, plant, seeks: int) -> LoopStage:
-    """:func:`identification.loop.closing.close_loop` on the first ``seeks`` seeks (odd ones validate).
+def close_loop(log, plant, seeks: int | None = None) -> LoopStage:
+    """:func:`identification.loop.closing.close_loop` on the first ``seeks`` seeks (default all; odd ones
+    validate).
     Output effects (disturbances such as run-out) stay in the result but not in the design plant:
     settle metrics are disturbance-free, as on the truth plant."""
     from identification.loop.closing import close_loop as augment
-    res = augment(first_seeks(log, seeks), plant)
+    part = first_seeks(log, seeks)
+    res = augment(part, plant)
     dropped = [e.name for e in res.plant.effects if e.kind == "output"]
     design = res.plant.copy(effects=[e for e in res.plant.effects if e.kind != "output"])
-    return LoopStage(res, design, seeks, dropped)
+    return LoopStage(res, design, int(np.count_nonzero(np.diff(part.target_track))), dropped)
 
 
 def design_and_bench(plant, truth, controller, cfg: DemoConfig, figures: Path) -> BenchStage:
@@ -220,7 +223,7 @@ def export(folder: Path, out: Path) -> ExportStage:
 class _Stages:
     out: Path
     quiet: bool
-    done: list = field(default_factory=list)   # [name, status, seconds, note]
+    done: list = field(default_factory=list)   # [name, status, wall s, note, CPU s of this process]
     n: int = 7
     t0: float = field(default_factory=time.perf_counter)
 
@@ -232,8 +235,8 @@ class _Stages:
     def stage(self, name: str):
         i = len(self.done) + 1
         self.say(f"[{i}/{self.n}] {name} ... (elapsed {time.perf_counter() - self.t0:.0f} s)")
-        t = time.perf_counter()
-        rec = [name, "ok", 0.0, ""]
+        t, c = time.perf_counter(), time.process_time()
+        rec = [name, "ok", 0.0, "", 0.0]
         self.done.append(rec)
         try:
             yield rec
@@ -246,8 +249,9 @@ class _Stages:
             msg = " ".join(str(exc).split())[:200]
             raise DemoError(f"stage {i} ({name}) failed: {type(exc).__name__}: {msg} "
                             f"(traceback in {log})") from None
-        rec[2] = time.perf_counter() - t
-        self.say(f"[{i}/{self.n}] {name}: {rec[1]} in {rec[2]:.1f} s (elapsed {time.perf_counter() - self.t0:.0f} s)"
+        rec[2], rec[4] = time.perf_counter() - t, time.process_time() - c
+        self.say(f"[{i}/{self.n}] {name}: {rec[1]} in {rec[2]:.1f} s, CPU {rec[4]:.1f} s "
+                 f"(elapsed {time.perf_counter() - self.t0:.0f} s)"
                  + (f" - {rec[3]}" if rec[3] else ""))
 
 
@@ -284,34 +288,42 @@ def run_demo(cfg: DemoConfig) -> DemoResult:
                            "(unstable model loop): designs and benches on it are not trustworthy")
             rec[1], rec[3] = "warning", rec[3] + "; UNSTABLE model loop with the drive's controller"
 
-    with run.stage(f"close the loop (first {cfg.loop_seeks} seeks)") as rec:
+    with run.stage("close the loop" + (f" (first {cfg.loop_seeks} seeks)" if cfg.loop_seeks else "")) as rec:
         lps = close_loop(log, ids.plant, cfg.loop_seeks)
         lps.result.plant.to_json(out / "plant.json")
         rec[3] = (f"validation RMS {lps.result.error_before['rms_track']:.4g} -> "
                   f"{lps.result.error_after['rms_track']:.4g} track; accepted: "
                   + (", ".join(lps.result.accepted) or "none"))
 
-    with run.stage("design and bench against sine / windowed sine") as rec:
-        bench = design_and_bench(lps.design_plant, truth, controller, cfg, out / "figures")
-        rec[3] = f"{len(cfg.lengths)} lengths, evaluated on the {bench.evaluated_on} plant"
-
-    pool = make_pool(cfg.workers)
+    # the sweep runs in the process pool beside the bench (one core each on an idle 2-core machine)
+    from concurrent.futures import ThreadPoolExecutor
+    pool, side = make_pool(cfg.workers), ThreadPoolExecutor(1, thread_name_prefix="demo-sweep")
     try:
-        with run.stage("small TPI sweep") as rec:
-            sw = sweep(lps.design_plant, controller, cfg, out / "sweep", pool)
-            rec[3] = f"{sw.summary.total} cells, {len(sw.summary.failed_cells)} failed"
+        swept = side.submit(sweep, lps.design_plant, controller, cfg, out / "sweep", pool)
+        with run.stage("design and bench against sine / windowed sine (sweep running beside it)") as rec:
+            bench = design_and_bench(lps.design_plant, truth, controller, cfg, out / "figures")
+            rec[3] = f"{len(cfg.lengths)} lengths, evaluated on the {bench.evaluated_on} plant"
+        with run.stage("small TPI sweep (started with the bench; time after it)") as rec:
+            sw = swept.result()
+            rec[3] = (f"{sw.summary.total} cells, {len(sw.summary.failed_cells)} failed, "
+                      f"{sw.summary.wall_s:.0f} s in all")
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
+        side.shutdown(wait=True)
 
     with run.stage("export firmware tables") as rec:
         ex = export(sw.folder, out / "export")
         rec[3] = f"{len(ex.tables.tables)} tables, {ex.tables.meta['ref_format']}"
 
-    result = DemoResult(cfg, log, truth, controller, ids, lps, bench, sw, ex, run.done)
+    import resource
+    kids = resource.getrusage(resource.RUSAGE_CHILDREN)          # the sweep's workers, reaped above
+    result = DemoResult(cfg, log, truth, controller, ids, lps, bench, sw, ex, run.done,
+                        cpu_s=time.process_time() + kids.ru_utime + kids.ru_stime)
     with run.stage("write the report") as rec:
         result.report = demo_report(result, out)
         rec[3] = str(result.report)
 
     print(demo_summary(result).to_string(index=False))
-    print(f"\nreport: {result.report.with_suffix('.html')}  (total {time.perf_counter() - run.t0:.0f} s)")
+    print(f"\nreport: {result.report.with_suffix('.html')}  (total {time.perf_counter() - run.t0:.0f} s wall, "
+          f"{result.cpu_s:.0f} s CPU with the sweep's workers)")
     return result
