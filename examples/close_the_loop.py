@@ -18,7 +18,7 @@ from seekopt.app.demo import first_seeks, sample_log_path
 from seekopt.app.report import COMPARE_DEFINITION, compare_fit
 
 
-def main(log_path=None, plant_path=None, max_seeks=60):
+def main(log_path=None, plant_path=None, max_seeks=None):
     log = first_seeks(read_log(log_path or sample_log_path()), max_seeks)   # fewer seeks: faster
     plant = ModalPlant.load(plant_path) if plant_path else identify(log).plant
     res = close_loop(log, plant)                # odd-numbered seeks validate

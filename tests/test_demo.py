@@ -47,7 +47,7 @@ def test_demo_quick_writes_report_and_tables(quick_run):
     assert status == 0
     for i in range(1, 8):
         assert f"[{i}/7]" in stderr
-    assert re.search(r"\[7/7\] write the report: ok in [\d.]+ s \(elapsed \d+ s\)", stderr)
+    assert re.search(r"\[7/7\] write the report: ok in [\d.]+ s, CPU [\d.]+ s \(elapsed \d+ s\)", stderr)
     assert "seek-settle, truth [ms]" in stdout and "sine (best T)" in stdout and "report:" in stdout
     for n in ("seekopt_tables.h", "seekopt_tables.c", "seekopt_tables.csv", "seekopt_tables.json"):
         assert (out / "export" / n).exists()
