@@ -194,11 +194,17 @@ def _loop(result) -> str:
     if len(res.plant.modes) != len(result.identify.plant.modes):
         text += (f"\nThe loop re-identified the linear plant: {len(res.plant.modes)} modes after it "
                  f"({len(result.identify.plant.modes)} identified).\n")
-    tried = [{"iteration": s.iteration, "candidate": s.effect, "validation RMS before": s.rms_before,
-              "after": s.rms_after, "BIC drop": s.bic_drop, "accepted": s.accepted} for s in res.steps]
+    tried, seen = [], set()
+    for s in res.steps:
+        outcome = "no" if not s.accepted else "re-fit" if s.effect in seen else "accepted"
+        seen |= {s.effect} if s.accepted else set()
+        tried.append({"iteration": s.iteration, "candidate": s.effect, "validation RMS before": s.rms_before,
+                      "after": s.rms_after, "BIC drop": s.bic_drop, "outcome": outcome})
     if tried:
-        text += ("\nCandidates tried (BIC drop – : not computed, the candidate did not lower the validation "
-                 "RMS by the required 5 %):\n\n" + markdown_table(pd.DataFrame(tried), fmt=".4g"))
+        text += ("\nEvery step of the loop (re-fit: an effect accepted earlier re-estimated after a later acceptance "
+                 "or a re-identification of the linear plant, not a new effect; BIC drop – : not computed, the "
+                 "candidate did not lower the validation RMS by the required 5 %, or a re-fit):\n\n"
+                 + markdown_table(pd.DataFrame(tried), fmt=".4g"))
     if res.unexplained:
         text += "\nStill in the residual:\n\n" + "\n".join(f"- {u}" for u in res.unexplained) + "\n"
     return text
