@@ -108,6 +108,9 @@ def test_full_demo(tmp_path, capsys):
     print(f"full demo: {wall:.0f} s")
     assert res.report.exists() and "data:image/png;base64," in res.report.with_suffix(".html").read_text()
     assert res.sweep.summary.ok and len(res.export.tables.tables) == 9
+    md = res.report.read_text()
+    firsts = [ln.split(" | ")[1] for ln in md.splitlines() if ln.endswith("| accepted |")]
+    assert sorted(firsts) == sorted(set(firsts)) and set(res.loop.result.accepted) <= set(firsts)
     for b in res.bench.results:
         opt = b.row("optimal")
         assert opt.settled and opt.settle_time_s <= min(r.settle_time_s for r in b.rows if r.kind == "tuned")
