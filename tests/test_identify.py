@@ -1,5 +1,9 @@
 """End-to-end tests of identification.estimate.identify on synthetic seek logs, figures and the CLI.
 
+The logs come from the independent drive of ``tests/drives`` (continuous plant integrated on a fine
+grid, its own controller stepping), never from ``seekopt.synth``: an error in the package's
+discretisation cannot cancel between the data and the estimator.
+
 Which truth modes must be recovered
 -----------------------------------
 A truth mode is *required* when it lies between 200 Hz and 0.45 fs and its settle-window response
@@ -27,11 +31,10 @@ import pytest
 
 from identification.estimate.identify import identify, predict_segments
 from identification.logs.seeklog import LogError, SeekLog, segment_seeks, write_log
-from identification.model.plant import ModalPlant, Mode
+from identification.model.plant import ModalPlant
 from identification.estimate.rigid import SegmentProjector
 from identification.estimate.gains import mode_response
-from seekopt.drive.presets import nss_controller_single_rate
-from seekopt.evaluate.synth import SynthConfig, synthesize
+from tests.drives import Schedule, make_log, modal_plant, nss_drive, nss_single_rate_controller, other_nss_truth
 
 NFFT = 256
 
@@ -87,19 +90,17 @@ def table(truth, required, ids):
     return "\n".join(lines)
 
 
-def alt_truth():
-    """A different drive: flex mode at 300 Hz, coil at 2.2 kHz, other damping and gains, other bias."""
-    from seekopt.drive.presets import nss_plant
-    p = nss_plant("v2")
-    modes = sorted([Mode(300.0, 0.04, 0.003), Mode(2200.0, 0.02, 0.015)] + p.modes, key=lambda m: m.freq_hz)
-    return p.copy(modes=modes, bias_a=-0.006)
+def drive_log(drive, schedule, noise_seed=0):
+    """``(log, truth)`` from an independent drive (tests/drives: no dynamics code shared with the package)."""
+    return make_log(drive, schedule, noise_seed=noise_seed), modal_plant(drive)
 
 
 # ------------------------------------------------------------------------------------ fixtures
 @pytest.fixture(scope="session")
 def default_log():
-    """Default truth, benchmark noise (sensor, force, flutter, RRO), 120 seeks."""
-    return synthesize(SynthConfig(n_seeks=120, seed=0))
+    """NSS-like truth (benchmark plant + flex and coil modes + bias), benchmark noise (sensor, force,
+    flutter, RRO), 120 seeks, from the independent drive."""
+    return drive_log(nss_drive(seed=0), Schedule(n_seeks=120, seed=0))
 
 
 @pytest.fixture(scope="session")
@@ -110,16 +111,17 @@ def default_ids(default_log):
 
 @pytest.fixture(scope="session")
 def clean_log():
-    """Default truth without any noise or disturbance (noise=False), 40 seeks."""
-    return synthesize(SynthConfig(n_seeks=40, seed=1, noise=False))
+    """Default truth without any noise or disturbance, 40 seeks."""
+    return drive_log(nss_drive(noise=False), Schedule(n_seeks=40, seed=1), noise_seed=None)
 
 
 @pytest.fixture(scope="session")
 def alt_logs():
-    """Another truth, seed and current limit: on the default (multirate) drive and on a single-rate drive."""
-    truth = alt_truth()
-    multi = synthesize(SynthConfig(n_seeks=100, seed=7, imax_a=0.5), plant=truth)
-    single = synthesize(SynthConfig(n_seeks=100, seed=11, imax_a=0.4), plant=truth, controller=nss_controller_single_rate())
+    """Another truth (flex mode at 300 Hz, coil at 2.2 kHz, other damping, gains and bias), seed and
+    current limit: on the default (multirate) drive and on a single-rate drive."""
+    truth = other_nss_truth()
+    multi = drive_log(nss_drive(truth, seed=7), Schedule(n_seeks=100, seed=7, imax_a=0.5))
+    single = drive_log(nss_drive(truth, nss_single_rate_controller(), seed=11), Schedule(n_seeks=100, seed=11, imax_a=0.4))
     return {"multirate": (multi, identify(multi[0])), "single-rate": (single, identify(single[0]))}
 
 

@@ -179,7 +179,7 @@ def closed_loop_poles(drive: Drive) -> np.ndarray:
     """Eigenvalues of the linear closed loop over one servo period (plant without state-dependent
     effects, saturation ignored); all inside the unit circle when the drive is stable."""
     lin = replace(drive.plant, kt_coeffs=(), bias_knots_track=(), bias_table_a=(), coulomb_a=0.0,
-                  viscous_a_per_tps=0.0, current_limit_a=None)
+                  viscous_a_per_tps=0.0, current_limit_a=None, dead_zone_a=0.0)
     st = PlantStepper(lin, drive.sample_rate_hz, drive.controller.L, drive.computation_delay_s, rk4_step=drive.rk4_step)
     Ac, Bc, Cc, Dc = _lifted_controller(drive.controller)
     n, H, L, nc = st.n, st.H, st.L, Ac.shape[0]

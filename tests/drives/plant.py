@@ -67,6 +67,7 @@ class TruthPlant:
     coulomb_a: float = 0.0
     viscous_a_per_tps: float = 0.0
     current_limit_a: float | None = None             # amplifier saturation
+    dead_zone_a: float = 0.0                         # amplifier dead zone (an effect outside the library)
     pivot: tuple | None = None                       # (freq_hz, zeta, rest_track)
     extra_modes: tuple = ()
     runout: tuple | None = None                      # (spindle_hz, harmonics, cos_track, sin_track)
@@ -104,6 +105,8 @@ class TruthPlant:
             elif name == "friction":
                 out.coulomb_a = float(p["coulomb_a"])
                 out.viscous_a_per_tps = float(p.get("viscous_a_per_tps", 0.0))
+            elif name == "dead_zone":
+                out.dead_zone_a = float(p["width_a"])
             elif name == "periodic_disturbance":
                 out.runout = (float(p["spindle_hz"]), tuple(p["harmonics"]), tuple(p["cos_track"]),
                               tuple(p["sin_track"]))
@@ -190,6 +193,9 @@ class TruthPlant:
         return (need - f) / kt
 
     def saturate(self, c):
+        """The amplifier's memoryless input map: dead zone, then saturation."""
+        if self.dead_zone_a:
+            c = np.sign(c) * np.maximum(np.abs(c) - self.dead_zone_a, 0.0)
         if self.current_limit_a is None:
             return c
         return np.clip(c, -self.current_limit_a, self.current_limit_a)

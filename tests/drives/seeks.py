@@ -3,7 +3,7 @@
 A seek of ``K`` tracks uses a feedforward current ``u_n = A g((n + 1/2)/N)``, ``n = 0..N-1``, held
 over each servo sample, with a shape ``g`` antisymmetric about the middle (so the rigid body ends
 at rest); ``A`` puts the firmware's rigid model ``k0_fw / s^2`` exactly ``K`` tracks further, and
-``N`` is the shortest length (at least ``min_samples``) with ``|A| <= imax``.  Shapes: ``sine``
+``N`` is the shortest length (at least ``min_samples``) with ``|A| <= imax`` (shapes scaled to a unit peak).  Shapes: ``sine``
 (``sin 2 pi x``), ``windowed_sine`` (``sin 2 pi x * (1 - cos 2 pi x)/2``), ``bangbang`` (full current,
 reversed at the middle, with raised-cosine transitions over ``ramp`` of the length).
 
@@ -38,10 +38,12 @@ def _bangbang(x, ramp=0.12):
 
 
 SHAPES = {"sine": _sine, "windowed_sine": _windowed_sine, "bangbang": _bangbang}
+_PEAK = {k: float(np.max(np.abs(g(np.linspace(0.0, 1.0, 100001))))) for k, g in SHAPES.items()}
 
 
 def shape(kind: str, N: int) -> np.ndarray:
-    return SHAPES[kind]((np.arange(N) + 0.5) / N)
+    """The shape sampled at the middle of each of ``N`` samples, scaled to a unit continuous peak."""
+    return SHAPES[kind]((np.arange(N) + 0.5) / N) / _PEAK[kind]
 
 
 def _travel_per_amp(g: np.ndarray, k0: float, Ts: float) -> float:
@@ -89,7 +91,7 @@ class Schedule:
     stroke_track: tuple = (0.0, 60000.0)
     preroll_s: float = 0.01
     keep_before_s: float = 0.002           # log kept from this long before the first seek
-    shapes: tuple = ("sine", "windowed_sine")
+    shapes: tuple = ("sine", "windowed_sine", "bangbang")
 
 
 @dataclass
