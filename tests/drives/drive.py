@@ -39,7 +39,7 @@ class Drive:
     firmware_delay_s: float | None = None
     spindle_hz: float | None = 120.0
     nodes: int = 16
-    rk4_step: float = 0.01
+    rk4_step: float = 0.002
     name: str = "test drive"
 
     @property

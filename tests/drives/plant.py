@@ -20,7 +20,7 @@ Integration: over one servo period the delayed command changes at ``L`` known in
 nonlinear forces (``Kt(p)``, ``bias(p)``, friction) are evaluated at ``nodes`` equally spaced
 instants per servo period (and at every command change) and held until the next one.  Between
 those instants the plant is linear time invariant with constant inputs and is advanced by RK4
-on a fine grid (``h * |eig(A)| <= rk4_step``), precomputed once as matrices (RK4 on a linear
+on a fine grid (``h * |eig(A)| <= rk4_step``, default 0.002), precomputed once as matrices (RK4 on a linear
 system with constant input is a fixed matrix per step).  Without state-dependent effects the
 whole servo period is one matrix (exact up to the RK4 error, ~1e-10 relative).
 """
@@ -225,7 +225,7 @@ class TruthPlant:
         return out
 
 
-def rk4_flow(M: np.ndarray, duration: float, rk4_step: float = 0.01) -> np.ndarray:
+def rk4_flow(M: np.ndarray, duration: float, rk4_step: float = 0.002) -> np.ndarray:
     """RK4 on ``z' = M z`` over ``duration`` [s] with equal steps ``h``, ``h * |eig(M)|max <= rk4_step``.
 
     For a linear system one RK4 step is the matrix ``I + hM + (hM)^2/2 + (hM)^3/6 + (hM)^4/24``;
@@ -263,7 +263,7 @@ class PlantStepper:
     """
 
     def __init__(self, plant: TruthPlant, sample_rate_hz: float, substeps: int = 1, extra_delay_s: float = 0.0,
-                 nodes: int = 16, rk4_step: float = 0.01):
+                 nodes: int = 16, rk4_step: float = 0.002):
         self.plant = plant
         self.Ts = 1.0 / float(sample_rate_hz)
         self.L = int(substeps)
@@ -349,14 +349,19 @@ class PlantStepper:
 
 
 def open_loop(plant: TruthPlant, current, sample_rate_hz: float, position0: float = 0.0, velocity0: float = 0.0,
-              history_a: float | None = None, **stepper_options) -> np.ndarray:
+              history_a: float | None = None, modes_only: bool = False, **stepper_options) -> np.ndarray:
     """Head position [track] at each sample from logged commands: ``current`` of shape ``(n,)`` (held
     over the sample) or ``(n, L)`` (held sub-steps).  Starts at rest (modes statically deflected by
-    ``history_a`` + the bias), ``history_a`` in the delay line (default: the first command)."""
+    ``history_a`` + the bias), ``history_a`` in the delay line (default: the first command).
+    ``modes_only``: the modes' deflection alone (the position less the rigid body's, without the
+    cancellation of subtracting two large positions)."""
     u = np.asarray(current, dtype=float)
     u = u.reshape(len(u), -1)
     st = PlantStepper(plant, sample_rate_hz, substeps=u.shape[1], **stepper_options)
     st.reset(position0, u[0, 0] if history_a is None else history_a, velocity0)
+    if modes_only:
+        st.c_out = st.c_out.copy()
+        st.c_out[0] = 0.0
     y = np.empty(len(u))
     for k in range(len(u)):
         y[k] = st.output()
