@@ -18,10 +18,11 @@ from seekopt.evaluate.synth import SynthConfig, synthesize
 from tests.drives import (PlantStepper, Schedule, TruthPlant, closed_loop_poles, drive_50k, make_log, modal_plant,
                           nss_drive, nss_single_rate_controller, open_loop, rigid_reference, rk4_flow, run)
 
-#: closed-loop positions agree to this [track] when both simulators are exact.  RK4 with
-#: h |eig|max <= 0.01 has a local error ~ (0.01)^5 / 120 ~ 1e-12 relative per step, a few hundred
-#: steps per period; positions reach 1e5 tracks (roundoff ~1e-11).  1e-6 track is 1e-5 of the
-#: 0.1-track settle band: a 1 % error in the delay alone moves the positions by ~0.1 track.
+#: closed-loop positions agree to this [track] when both simulators are exact.  The drive's RK4 with
+#: h |eig|max <= 0.002 has a local error ~ (0.002)^5 / 120 ~ 3e-16 relative per step (its period maps
+#: match scipy's expm to ~1e-12, test below); positions reach 1e5 tracks (roundoff ~1e-11); measured
+#: differences 1e-10 .. 2e-9 track.  1e-6 track is 1e-5 of the 0.1-track settle band: a 1 % error in
+#: the delay alone moves the positions by ~0.1 track (test_agreement_test_is_sensitive).
 POS_TOL = 1e-6
 CUR_TOL = 1e-9      # [A]
 
