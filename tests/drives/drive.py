@@ -140,8 +140,9 @@ def make_log(drive: Drive, schedule: Schedule | None = None, noise_seed: int | N
         extra.update({f"current_sub{j + 1}_a": tr.current_sub_a[sl, j] for j in range(L)})
     meta = {"generator": "tests.drives", "drive": drive.name, "seed": str(sch.seed), "n_seeks": str(sch.n_seeks),
             "noise": "off" if noise_seed is None else f"seed {noise_seed}"}
-    if drive.spindle_hz:
-        meta.update(rpm=f"{60.0 * drive.spindle_hz:.6g}", sectors=f"{fs / drive.spindle_hz:.6g}")
+    spindle = drive.plant.runout[0] if drive.plant.runout is not None else drive.spindle_hz   # run-out is at the spindle
+    if spindle:
+        meta.update(rpm=f"{60.0 * spindle:.10g}", sectors=f"{fs / spindle:.10g}")
     return SeekLog.from_arrays(np.arange(n - k0) / fs, tr.current_a[sl], tr.position_track[sl], target[sl], fs,
                                track_pitch_nm=drive.plant.track_pitch_nm, metadata=meta, extra=extra)
 
