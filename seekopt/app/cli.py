@@ -540,7 +540,8 @@ def cmd_export(args) -> int:
 def cmd_demo(args) -> int:
     from seekopt.app.demo import DemoConfig, run_demo
     check_output_dir(args.output, "-o")
-    run_demo(DemoConfig(log=args.log, outdir=args.output, quick=args.quick))
+    run_demo(DemoConfig(log=args.log, outdir=args.output, quick=args.quick,
+                        quiet=bool(getattr(args, "quiet", False))))
     return 0
 
 

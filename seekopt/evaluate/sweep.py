@@ -28,7 +28,7 @@ Results folder layout
 ``results.csv``
     The tidy table assembled from ``cells/`` (one row per cell x profile kind).
 ``profiles/``, ``figures/``
-    Optimal profiles as CSV; the sweep figures (:mod:`seekopt.app.report`).
+    Optimal profiles as CSV; the sweep figures (:mod:`seekopt.evaluate.sweep_figures`).
 
 Re-running a sweep into the same folder resumes it: saved cells are read, not
 recomputed; two sweeps running into one folder share the cells (claims).  The grid may change
@@ -642,7 +642,7 @@ def run_sweep(cfg: SweepConfig, outdir, *, engine: str = "process", workers: int
     summary.table = assemble(outdir, cfg)
     if figures:
         import pandas as pd
-        from seekopt.app.report import plot_sweep
+        from seekopt.evaluate.sweep_figures import plot_sweep
         try:
             summary.figures = plot_sweep(pd.read_csv(summary.table), outdir / "figures")
         except Exception as exc:  # noqa: BLE001 - the table is saved; say so, do not lose the run
