@@ -41,7 +41,7 @@ from threadpoolctl import threadpool_limits
 from identification.model.plant import ModalPlant
 
 from seekopt.design import guard as _guard, qp as _qp
-from seekopt.design.family import SetPrediction, predict_on_set, scale_feedforward_maps
+from seekopt.design.predict import SetPrediction, predict_on_set, scale_feedforward_maps
 from seekopt.design.guard import GuardReport
 from seekopt.design.metrics import SeekMetrics, evaluate_profile, worst_case
 from seekopt.design.problem import ProblemError, SeekProblem, check_closed_loop

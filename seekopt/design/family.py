@@ -29,9 +29,8 @@ corners of the correlated (common) drifts -- a common frequency scale is one par
 mode, so temperature, damping scale, gain and delay give at most 16 corners -- and a few rows of a
 strength-2 orthogonal array over the independent per-mode ranges (each mode's frequency, damping and
 gain at +- its range; the residual vibration is linear in the gains and its worst case over a box
-sits on vertices).  Each plant carries a label (``plant.meta["set_label", "label_set", "SetPrediction", "predict_on_set",
-           "feedforward_scale", "calibrated", "played_on", "scale_feedforward_maps"]``) so a design can say
-which plant of the set binds.
+sits on vertices).  Each plant carries a label (``plant.meta["set_label"]``) so a design can say which plant of
+the set binds; :mod:`seekopt.design.predict` plays a profile on every plant of the set.
 """
 from __future__ import annotations
 
@@ -44,8 +43,12 @@ import numpy as np
 
 from identification.model.plant import ModalPlant, Mode
 
+from seekopt.design.predict import (SetPrediction, calibrated, feedforward_scale, played_on,  # noqa: F401
+                                    predict_on_set, scale_feedforward_maps, set_label)
+
 __all__ = ["DriftError", "Drift", "DriftRanges", "ModeRange", "family_spread", "drift_set", "drifted", "match_modes",
-           "set_label"]
+           "label_set", "set_label", "SetPrediction", "predict_on_set", "feedforward_scale", "calibrated", "played_on",
+           "scale_feedforward_maps"]
 
 
 class DriftError(ValueError):
@@ -55,11 +58,6 @@ class DriftError(ValueError):
 def _seek_induced(mode: Mode) -> bool:
     from seekopt.design.robust import seek_induced
     return seek_induced(mode)
-
-
-def set_label(plant: ModalPlant) -> str:
-    """The plant's label in a robust set (``"nominal"`` if it has none)."""
-    return str((plant.meta or {}).get("set_label", "nominal"))
 
 
 _NUM = r"(?:\+-|±|\+/-)?\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*"
@@ -405,41 +403,6 @@ def drifted(plant: ModalPlant, temp: float = 0.0, zeta: float = 0.0, gain: float
     return p
 
 
-def feedforward_scale(plant: ModalPlant) -> float:
-    """Factor the drive applies to a profile's current on ``plant`` (its gain calibration; 1 if unset)."""
-    return float((plant.meta or {}).get("ff_scale", 1.0))
-
-
-def calibrated(member: ModalPlant, design_k0: float, gain_estimate: float | None = None) -> ModalPlant:
-    """``member`` with the feedforward scale its drive applies: design gain / its gain estimate
-    (default its own ``k0``: a member identified from its own log knows its gain)."""
-    meta = dict(member.meta or {})
-    meta["ff_scale"] = float(design_k0) / float(gain_estimate or member.k0)
-    return member.copy(meta=meta)
-
-
-def played_on(profile, plant: ModalPlant):
-    """The profile as the drive plays it on ``plant``: current x :func:`feedforward_scale` (the
-    reference is unchanged)."""
-    s = feedforward_scale(plant)
-    if s == 1.0:
-        return profile
-    from seekopt.design.profiles import Profile
-    return Profile(np.asarray(profile.current_a) * s, profile.reference_track, profile.sample_rate_hz, profile.tracks,
-                   profile.imax_a, profile.settle_track, profile.kind, profile.seek_samples,
-                   dict(profile.meta, ff_scale=round(s, 6)))
-
-
-def scale_feedforward_maps(maps, plant: ModalPlant):
-    """Scale the feedforward columns of ``maps`` (:class:`seekopt.design.qp.LoopMaps` of ``plant``) by the
-    plant's :func:`feedforward_scale` (in place; returns ``maps``)."""
-    s = feedforward_scale(plant)
-    if s != 1.0:
-        maps.y_u = maps.y_u * s
-        maps.i_u = maps.i_u * s
-    return maps
-
-
 def _vary(nominal: ModalPlant, label: str, temp=0.0, zeta=0.0, gain=0.0, delay=0.0, sf=None, sz=None, sg=None,
           ffgain=0.0):
     """A vertex: drifted plant; its gain drift ``gain`` compensated by the drive's feedforward calibration,
@@ -549,61 +512,3 @@ def drift_set(nominal: ModalPlant, family, drift: Drift) -> list:
         if h not in seen:
             seen.add(h); uniq.append(p)
     return uniq
-
-
-@dataclass
-class SetPrediction:
-    """A profile's predicted seek-settle times on every plant of a design's set.
-
-    Attributes
-    ----------
-    labels : list of str
-        ``set_label`` of each plant (nominal first).
-    metrics : list of SeekMetrics
-        Measured by the one simulator on each plant (effects included).
-    worst : int
-        Index of the plant that settles last (ties: the larger residual after the seek).
-    binding : int
-        Index of the plant closest to the settle band after the seek (largest peak ``|PES|`` from the
-        end of the seek on): the plant whose band constraint binds the design.
-    """
-
-    labels: list
-    metrics: list
-    worst: int
-    binding: int
-
-    @property
-    def nominal(self):
-        return self.metrics[0]
-
-    @property
-    def worst_metrics(self):
-        return self.metrics[self.worst]
-
-    def members(self) -> list:
-        """``(label, metrics)`` of the nominal plant and the family members."""
-        return [(lab, m) for lab, m in zip(self.labels, self.metrics) if lab == "nominal" or lab.startswith("member")]
-
-    def to_meta(self) -> dict:
-        ms = lambda m: round(m.settle_time_s * 1e3, 4)     # noqa: E731
-        return {"predicted_settle_nominal_ms": ms(self.nominal),
-                "predicted_settle_worst_ms": ms(self.worst_metrics),
-                "predicted_worst_plant": self.labels[self.worst],
-                "predicted_binding_plant": self.labels[self.binding],
-                "predicted_settle_members_ms": ";".join(f"{lab}={ms(m)}" for lab, m in self.members()),
-                "robust_set_size": len(self.labels)}
-
-
-def predict_on_set(plants: list, controller, profile, settle: float, k0_for_tbb: float | None = None,
-                   first=None) -> SetPrediction:
-    """Play ``profile`` on every plant of ``plants`` (:func:`seekopt.design.metrics.evaluate_profile`, the
-    current scaled by each plant's feedforward calibration, :func:`played_on`); ``first`` reuses the
-    metrics already measured on ``plants[0]``."""
-    from seekopt.design.metrics import evaluate_profile
-    ms = [first if (i == 0 and first is not None) else
-          evaluate_profile(p, controller, played_on(profile, p), settle=settle, k0_for_tbb=k0_for_tbb)
-          for i, p in enumerate(plants)]
-    worst = max(range(len(ms)), key=lambda i: (ms[i].settle_time_s, ms[i].peak_pes_after_track))
-    binding = max(range(len(ms)), key=lambda i: ms[i].peak_pes_after_track)
-    return SetPrediction([set_label(p) for p in plants], ms, worst, binding)

@@ -184,7 +184,8 @@ def _banner(ts: TableSet, prefix: str, what: str) -> str:
              f"plant {m['plant_hash']}, controller {m['controller_hash']}, sweep {m['sweep_hash']}, "
              f"designer {m['designer']}"]
     if m.get("family_hashes"):
-        lines.append(f"holds the plant family {m['family_hashes']} (drift {m['drift']})")
+        drift = str(m["drift"]).replace("±", "+-").encode("ascii", "replace").decode()    # C / CSV banners stay ASCII
+        lines.append(f"holds the plant family {m['family_hashes']} (drift {drift})")
     lines += [
              f"sample rate {float(m['sample_rate_hz'])!r} Hz, Imax {float(m['imax_a'])!r} A, "
              f"settle band {float(m['settle_track'])!r} track",
