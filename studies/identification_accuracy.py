@@ -184,7 +184,7 @@ def _pct(x, nd=2):
 def _e2e_log(seed, n_seeks, drive, cache_dir):
     """Synthesise (or load from ``cache_dir``) a log of the default truth; returns ((log, truth), seconds)."""
     import time
-    from identification.logs.seeklog import read_log, write_log
+    from identification.logs import read_log, write_log
     from identification.model.plant import ModalPlant
     from seekopt.drive.presets import nss_controller_single_rate
     from seekopt.evaluate.synth import SynthConfig, synthesize

@@ -26,7 +26,7 @@ import numpy as np
 import pytest
 
 from identification.estimate.identify import identify, predict_segments
-from identification.logs.seeklog import LogError, SeekLog, segment_seeks, write_log
+from identification.logs import LogError, SeekLog, segment_seeks, write_log
 from identification.model.plant import ModalPlant, Mode
 from identification.estimate.rigid import SegmentProjector
 from identification.estimate.gains import mode_response

@@ -72,7 +72,7 @@ def _parse_effect(text: str) -> dict:
 
 # ------------------------------------------------------------------ commands
 def cmd_synth(args) -> int:
-    from identification.logs.seeklog import write_log
+    from identification.logs import write_log
     from seekopt.evaluate.synth import SynthConfig, synthesize
     cfg = SynthConfig(n_seeks=args.seeks, seed=args.seed, imax_a=args.imax, noise=not args.no_noise,
                       rro=not args.no_rro, rro_scale=args.rro_scale, log_substeps=not args.mean_current_only,
@@ -91,7 +91,7 @@ def cmd_identify(args) -> int:
     modal plant, print the modes with one-standard-deviation uncertainties, k0, bias, delay and the
     held-out fit; a bad log raises LogError (one line, exit 2 via :func:`main`)."""
     from identification.estimate.identify import identify
-    from identification.logs.seeklog import read_log
+    from identification.logs import read_log
     log = read_log(args.log)
     res = identify(log, method=args.method)
     p, sd = res.plant, res.plant.std
@@ -182,7 +182,7 @@ def cmd_bench(args) -> int:
 def cmd_loop(args) -> int:
     from identification.loop.closing import close_loop
     from identification.estimate.identify import identify
-    from identification.logs.seeklog import read_log
+    from identification.logs import read_log
     from identification.loop.report import write_report
     log = read_log(args.log)
     val = read_log(args.validate) if args.validate else None

@@ -230,7 +230,7 @@ def _design_and_sweep(cfg, run, pool, plant, truth, controller, native, sweep_di
 def run_demo(cfg: DemoConfig) -> dict:
     """Run the pipeline; returns a dict with the report path, tables and stage timings."""
     import pandas as pd
-    from identification.logs.seeklog import read_log
+    from identification.logs import read_log
     from identification.model.plant import TRACK_PITCH_PER_TPI_NM
     from seekopt.app import report
     from seekopt.drive.controller import Controller
