@@ -22,11 +22,13 @@ import sys
 import numpy as np
 
 try:
-    from identification.estimate.prony import (crb_modes, damped_sinusoid, ls_prony, matrix_pencil, refine_poles, snr_db,
+    from identification.estimate.pencil import matrix_pencil
+    from identification.estimate.prony import (crb_modes, damped_sinusoid, ls_prony, refine_poles, snr_db,
                                       z_to_modal)
 except ImportError:  # run as a script from anywhere
     sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    from identification.estimate.prony import (crb_modes, damped_sinusoid, ls_prony, matrix_pencil, refine_poles, snr_db,
+    from identification.estimate.pencil import matrix_pencil
+    from identification.estimate.prony import (crb_modes, damped_sinusoid, ls_prony, refine_poles, snr_db,
                                       z_to_modal)
 
 FS = 26_400.0

@@ -1,12 +1,12 @@
-"""Tests for identification.estimate.prony: LS Prony (paper eqs. 4-7), pooled matrix pencil, CRB."""
+"""Tests for identification.estimate.prony and .pencil: LS Prony (paper eqs. 4-7), pooled matrix pencil, CRB."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+from identification.estimate.pencil import matrix_pencil, stabilisation_diagram
 from identification.estimate.prony import (PoleEstimate, crb_damped_sinusoid, crb_modes, damped_sinusoid, fit_amplitudes,
-                                  ls_prony, matrix_pencil, modal_to_z, refine_poles, snr_db,
-                                  stabilisation_diagram, z_to_modal)
+                                           ls_prony, modal_to_z, refine_poles, snr_db, z_to_modal)
 
 FS = 26_400.0
 FREQS = np.array([350.0, 1738.0, 4100.0])

@@ -16,7 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from identification.estimate.gains import mode_regressors
-from identification.estimate.identify import Identification, predict_segments
+from identification.estimate.heldout import predict_segments
+from identification.estimate.result import Identification
 from identification.logs.seeklog import SeekLog, segment_seeks
 
 __all__ = ["plot_identification", "fig3_modes", "fig4_spectra", "fig5_transfer_functions", "fig6_settle_pes",

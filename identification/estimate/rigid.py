@@ -46,10 +46,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import minimize_scalar
 
+from identification.estimate.linalg import SegmentProjector, lstsq, white_cov
 from identification.model.plant import ModalPlant
 
-__all__ = ["double_sum", "Eq8Fit", "eq8_fit", "k0_from_b0", "SegmentProjector", "zoh_rigid_response",
-           "bias_response", "RigidFit", "rigid_fit"]
+__all__ = ["double_sum", "Eq8Fit", "eq8_fit", "k0_from_b0", "zoh_rigid_response", "bias_response", "RigidFit",
+           "rigid_fit", "SegmentProjector"]
 
 
 # ------------------------------------------------------------------------------------ eq. (8)
@@ -73,7 +74,8 @@ class Eq8Fit:
 
     ``b0`` [track/A] and ``b1`` [track] as in eq. (8); ``k0`` [track/(A s^2)] (``b0 / Ts^2``);
     ``bias_a = -b1 / b0`` [A]; ``U`` the pooled 2x2 normal matrix and ``rhs`` its right-hand side;
-    ``residual_rms`` [track]; ``n_seeks`` and ``n_samples`` used.
+    ``residual_rms`` [track]; ``n_seeks`` and ``n_samples`` used; ``cov`` the covariance of
+    ``(b0, b1)`` for white residuals (:func:`identification.estimate.linalg.white_cov`).
     """
     b0: float
     b1: float
@@ -84,6 +86,7 @@ class Eq8Fit:
     residual_rms: float
     n_seeks: int
     n_samples: int
+    cov: np.ndarray | None = None
 
 
 def eq8_fit(current_a, position_track, segments, dt: float, bias_regressor: str = "cost") -> Eq8Fit:
@@ -133,108 +136,43 @@ def eq8_fit(current_a, position_track, segments, dt: float, bias_regressor: str 
         used += 1
     if used == 0:
         raise ValueError("eq8_fit: no segment with at least 3 samples")
-    s = np.sqrt(np.diag(U))
-    b = np.linalg.solve(U / np.outer(s, s), rhs / s) / s
+    b = lstsq(U, rhs)                       # the pooled normal equations of eq. (8)
     # the residual from the residuals themselves: yy - 2 b.rhs + b.U.b cancels catastrophically
-    rss = sum(float(np.sum((y - X @ b) ** 2)) for X, y in blocks)
+    r = np.concatenate([y - X @ b for X, y in blocks])
+    cov = white_cov(np.vstack([X for X, _ in blocks]), r)
     b0, b1 = float(b[0]), float(b[1])
-    return Eq8Fit(b0, b1, k0_from_b0(b0, dt), -b1 / b0, U, rhs, float(np.sqrt(rss / n)), used, n)
+    return Eq8Fit(b0, b1, k0_from_b0(b0, dt), -b1 / b0, U, rhs, float(np.sqrt(float(r @ r) / n)), used, n, cov)
 
 
 # ------------------------------------------------------------------------------------ ZOH rigid body
-class SegmentProjector:
-    """Orthogonal projection that removes a per-segment polynomial ``p0 + v0 t (+ ...)``.
-
-    The rows are the concatenation of the index ranges ``segments`` (half-open, into the log);
-    ``t`` is the local sample index from each segment's *start* (``offsets`` shifts it when only
-    part of a segment is used, so that ``t`` still counts from the seek start).  Projecting the
-    data and every regressor removes the per-segment initial position and velocity exactly
-    (variable projection of linear nuisance parameters).
-
-    Parameters
-    ----------
-    segments : sequence of (int, int)
-    offsets : sequence of int, optional
-        Local time of each range's first row (default 0).
-    degree : int
-        Polynomial degree of the nuisance (1: initial position and velocity).
-    """
-
-    def __init__(self, segments, offsets=None, degree: int = 1):
-        segs = [(int(a), int(b)) for a, b in segments if b > a]
-        if not segs:
-            raise ValueError("SegmentProjector: no non-empty segment")
-        offsets = [0] * len(segs) if offsets is None else list(offsets)
-        self.segments = segs
-        self.lengths = np.array([b - a for a, b in segs])
-        self.rows = np.concatenate([np.arange(a, b) for a, b in segs])
-        self.seg_id = np.repeat(np.arange(len(segs)), self.lengths)
-        self.bounds = np.r_[0, np.cumsum(self.lengths)][:len(segs) + 1]
-        t = np.concatenate([np.arange(n, dtype=float) + o for n, o in zip(self.lengths, offsets)])
-        # orthonormal per-segment polynomial basis: Gram-Schmidt on 1, t, t^2 .. within each segment
-        self.degree = int(degree)
-        scale = np.repeat(np.maximum(self.lengths, 1).astype(float), self.lengths)
-        tt = t / scale
-        Q = []
-        for d in range(self.degree + 1):
-            v = tt ** d
-            for _ in range(2):                       # twice is enough (re-orthogonalisation)
-                for q in Q:
-                    v = v - q * np.add.reduceat(q * v, self.bounds[:-1])[self.seg_id]
-            nrm = np.sqrt(np.add.reduceat(v * v, self.bounds[:-1]))
-            ok = nrm > 1e-9 * np.sqrt(self.lengths)  # segments too short for this degree get 0
-            v = v * np.where(ok, 1.0 / np.where(ok, nrm, 1.0), 0.0)[self.seg_id]
-            Q.append(v)
-        self.Q = np.column_stack(Q)
-        self.t = t
-        # the projection as sparse products: coefficients S x (one row per segment and basis
-        # function), fit S^T (S x)
-        from scipy import sparse
-        w, nseg, n = self.Q.shape[1], len(segs), len(self.rows)
-        self._S = sparse.csr_matrix((self.Q.T.ravel(), (np.repeat(np.arange(w), n) * nseg + np.tile(self.seg_id, w),
-                                                        np.tile(np.arange(n), w))), shape=(w * nseg, n))
-        self._ST = self._S.T.tocsr()
-
-    @property
-    def n_rows(self) -> int:
-        return len(self.rows)
-
-    @property
-    def n_nuisance(self) -> int:
-        return int(sum(min(self.degree + 1, n) for n in self.lengths))
-
-    def take(self, x) -> np.ndarray:
-        """Rows of a log-length array (or the rows of each column of a 2-D array)."""
-        return np.asarray(x)[self.rows]
-
-    def fitted(self, x) -> np.ndarray:
-        """The per-segment polynomial LS fit of rows ``x`` (1-D, or 2-D with one column per signal)."""
-        x = np.asarray(x, dtype=float)
-        return self._ST @ (self._S @ x)
-
-    def project(self, x) -> np.ndarray:
-        """``x`` minus its per-segment polynomial fit (``x`` already restricted to the rows)."""
-        return np.asarray(x, dtype=float) - self.fitted(x)
-
-
-def _rigid_gammas(dt: float, delay_s: float):
+def _rigid_block(dt: float, delay_s: float):
+    """Whole-sample delay ``m``, ``Phi``, ``Gamma_new``, ``Gamma_old`` of the unit rigid body in the one
+    discretisation (:class:`identification.model.discrete.DiscretePlant`)."""
     dp = ModalPlant(k0=1.0, delay_s=float(delay_s)).discretize(dt)
-    return dp.m, dp.G_new[:2], dp.G_old[:2]
+    Phi = dp.Phi[:2, :2]
+    if not (Phi[0, 0] == Phi[1, 1] == 1.0 and Phi[1, 0] == 0.0):
+        raise AssertionError("the rigid block of DiscretePlant is not a double integrator")
+    return dp.m, Phi, dp.G_new[:2], dp.G_old[:2]
 
 
 def zoh_rigid_response(current_a, dt: float, delay_s: float, starts) -> np.ndarray:
     """Unit-``k0`` rigid-body position from the measured current, restarted at each start.
 
-    The ZOH double integrator with fractional input delay of :class:`identification.model.plant.DiscretePlant`
-    (``ModalPlant(k0=1, delay_s=delay_s)``)::
+    The rigid block of :class:`identification.model.discrete.DiscretePlant` of
+    ``ModalPlant(k0=1, delay_s=delay_s)`` (ZOH, fractional input delay: its ``Phi``, ``Gamma_new``,
+    ``Gamma_old``), stepped by two cumulative sums -- exact, because that block is a double
+    integrator, ``Phi = [[1, dt], [0, 1]]`` (checked)::
 
         v[k+1] = v[k] + Gn_v u[k-m] + Go_v u[k-m-1]
         p[k+1] = p[k] + dt v[k] + Gn_p u[k-m] + Go_p u[k-m-1]
 
+    ``tests/test_rigid.py`` checks it against ``DiscretePlant`` stepping, fractional delays and the
+    multirate sub-step hold included.
+
     with ``p = v = 0`` at every index in ``starts`` (the delay line holds the measured current
     before it; before sample 0 the current is taken as ``current_a[0]``).  Between starts the
     response runs on; samples before the first start are zero.  Per-segment initial position and
-    velocity are left to :class:`SegmentProjector`.
+    velocity are left to :class:`identification.estimate.linalg.SegmentProjector`.
 
     ``current_a`` of shape ``(n, L)`` is a multirate current (``L`` held sub-steps per sample,
     :meth:`identification.logs.seeklog.SeekLog.input_current`): the response is computed at ``dt / L`` and
@@ -251,7 +189,7 @@ def zoh_rigid_response(current_a, dt: float, delay_s: float, starts) -> np.ndarr
         fine = zoh_rigid_response(u.reshape(-1), dt / L, delay_s, [L * int(s) for s in starts])
         return fine[::L]
     n = len(u)
-    m, gn, go = _rigid_gammas(dt, delay_s)
+    m, Phi, gn, go = _rigid_block(dt, delay_s)
     pad = np.r_[np.full(m + 1, u[0]), u]
     un = pad[1:n + 1]          # u[k - m]
     uo = pad[:n]               # u[k - m - 1]
@@ -268,7 +206,7 @@ def zoh_rigid_response(current_a, dt: float, delay_s: float, starts) -> np.ndarr
         return c - base[seg]
 
     v = restart_cumsum(dv)
-    p = restart_cumsum(dt * v + dp_)
+    p = restart_cumsum(Phi[0, 1] * v + dp_)
     p[seg == 0] = 0.0
     return p
 
@@ -304,9 +242,7 @@ def _rigid_ls(u, y, dt, delay, proj, starts):
     B = proj.take(bias_response(len(u), dt, starts))
     X = proj.project(np.column_stack([R, B]))
     yp = proj.project(proj.take(y))
-    s = np.linalg.norm(X, axis=0)
-    c, *_ = np.linalg.lstsq(X / s, yp, rcond=None)
-    c = c / s
+    c = lstsq(X, yp)
     r = yp - X @ c
     return c, r, X
 
@@ -342,8 +278,7 @@ def rigid_fit(current_a, position_track, segments, dt: float, delay_range=(0.0, 
     d = minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 1e-6}).x if hi > lo else lo
     c, r, X = _rigid_ls(u, y, dt, d * dt, proj, starts)
     dof = max(proj.n_rows - proj.n_nuisance - 2, 1)
-    s2 = float(r @ r) / dof
-    cov = np.linalg.inv(X.T @ X) * s2
+    cov = white_cov(X, r, dof=dof)
     k0 = float(c[0])
     bias = float(c[1] / c[0])
     sb = np.sqrt(cov[1, 1] / k0 ** 2 + bias ** 2 * cov[0, 0] / k0 ** 2)
