@@ -145,14 +145,35 @@ def eq8_fit(current_a, position_track, segments, dt: float, bias_regressor: str 
 
 
 # ------------------------------------------------------------------------------------ ZOH rigid body
-def _rigid_block(dt: float, delay_s: float):
-    """Whole-sample delay ``m``, ``Phi``, ``Gamma_new``, ``Gamma_old`` of the unit rigid body in the one
-    discretisation (:class:`identification.model.discrete.DiscretePlant`)."""
+def _rigid_block(dt: float, delay_s: float = 0.0):
+    """``m, h, Gamma_new, Gamma_old, Gamma_f`` of the unit rigid body in the one discretisation
+    (:class:`identification.model.discrete.DiscretePlant` of ``ModalPlant(k0=1, delay_s=delay_s)``):
+    whole-sample delay ``m``, ``Phi = [[1, h], [0, 1]]`` (checked) and the input / force columns."""
     dp = ModalPlant(k0=1.0, delay_s=float(delay_s)).discretize(dt)
     Phi = dp.Phi[:2, :2]
     if not (Phi[0, 0] == Phi[1, 1] == 1.0 and Phi[1, 0] == 0.0):
         raise AssertionError("the rigid block of DiscretePlant is not a double integrator")
-    return dp.m, Phi, dp.G_new[:2], dp.G_old[:2]
+    return dp.m, float(Phi[0, 1]), dp.G_new[:2], dp.G_old[:2], dp.G_f[:2]
+
+
+def _restarted_rigid(dp_in, dv_in, h: float, starts) -> np.ndarray:
+    """Position of the rigid block ``p[k+1] = p[k] + h v[k] + dp_in[k]``, ``v[k+1] = v[k] + dv_in[k]``
+    with ``p = v = 0`` at every index in ``starts`` and zero before the first: two cumulative
+    sums, exact for ``Phi = [[1, h], [0, 1]]``."""
+    n = len(dv_in)
+    starts = np.asarray(sorted(set(int(s) for s in starts)), dtype=int)
+    seg = np.zeros(n, dtype=int)
+    seg[starts] = 1
+    seg = np.cumsum(seg)        # segment number of each sample (0: before the first start)
+
+    def restart_cumsum(x):      # y[k] = sum_{start <= j < k} x[j] within each segment
+        c = np.r_[0.0, np.cumsum(x)][:n]
+        base = np.r_[0.0, c[starts]]
+        return c - base[seg]
+
+    p = restart_cumsum(h * restart_cumsum(dv_in) + dp_in)
+    p[seg == 0] = 0.0
+    return p
 
 
 def zoh_rigid_response(current_a, dt: float, delay_s: float, starts) -> np.ndarray:
@@ -166,9 +187,6 @@ def zoh_rigid_response(current_a, dt: float, delay_s: float, starts) -> np.ndarr
         v[k+1] = v[k] + Gn_v u[k-m] + Go_v u[k-m-1]
         p[k+1] = p[k] + dt v[k] + Gn_p u[k-m] + Go_p u[k-m-1]
 
-    ``tests/test_rigid.py`` checks it against ``DiscretePlant`` stepping, fractional delays and the
-    multirate sub-step hold included.
-
     with ``p = v = 0`` at every index in ``starts`` (the delay line holds the measured current
     before it; before sample 0 the current is taken as ``current_a[0]``).  Between starts the
     response runs on; samples before the first start are zero.  Per-segment initial position and
@@ -177,6 +195,9 @@ def zoh_rigid_response(current_a, dt: float, delay_s: float, starts) -> np.ndarr
     ``current_a`` of shape ``(n, L)`` is a multirate current (``L`` held sub-steps per sample,
     :meth:`identification.logs.seeklog.SeekLog.input_current`): the response is computed at ``dt / L`` and
     sampled at the log's instants.
+
+    ``tests/test_rigid.py`` checks it against ``DiscretePlant`` stepping, fractional delays and the
+    multirate sub-step hold included.
 
     Returns
     -------
@@ -189,38 +210,18 @@ def zoh_rigid_response(current_a, dt: float, delay_s: float, starts) -> np.ndarr
         fine = zoh_rigid_response(u.reshape(-1), dt / L, delay_s, [L * int(s) for s in starts])
         return fine[::L]
     n = len(u)
-    m, Phi, gn, go = _rigid_block(dt, delay_s)
+    m, h, gn, go, _ = _rigid_block(dt, delay_s)
     pad = np.r_[np.full(m + 1, u[0]), u]
     un = pad[1:n + 1]          # u[k - m]
     uo = pad[:n]               # u[k - m - 1]
-    dv = gn[1] * un + go[1] * uo
-    dp_ = gn[0] * un + go[0] * uo
-    starts = np.asarray(sorted(set(int(s) for s in starts)), dtype=int)
-    seg = np.zeros(n, dtype=int)
-    seg[starts] = 1
-    seg = np.cumsum(seg)        # segment number of each sample (0: before the first start)
-
-    def restart_cumsum(x):      # y[k] = sum_{start <= j < k} x[j] within each segment
-        c = np.r_[0.0, np.cumsum(x)][:n]
-        base = np.r_[0.0, c[starts]]
-        return c - base[seg]
-
-    v = restart_cumsum(dv)
-    p = restart_cumsum(Phi[0, 1] * v + dp_)
-    p[seg == 0] = 0.0
-    return p
+    return _restarted_rigid(gn[0] * un + go[0] * uo, gn[1] * un + go[1] * uo, h, starts)
 
 
 def bias_response(n: int, dt: float, starts) -> np.ndarray:
-    """Unit-``k0`` position from a unit constant force (undelayed): ``(t - t_start)^2 / 2`` [s^2]."""
-    starts = np.asarray(sorted(set(int(s) for s in starts)), dtype=int)
-    seg = np.zeros(n, dtype=int)
-    seg[starts] = 1
-    seg = np.cumsum(seg)
-    k = np.arange(n) - np.r_[0, starts][seg]
-    out = 0.5 * (k * dt) ** 2
-    out[seg == 0] = 0.0
-    return out
+    """Unit-``k0`` position from a unit constant force (the undelayed force channel ``Gamma_f`` of
+    the same rigid block), restarted at each start: ``(t - t_start)^2 / 2`` [s^2]."""
+    _, h, _, _, gf = _rigid_block(dt)
+    return _restarted_rigid(np.full(n, gf[0]), np.full(n, gf[1]), h, starts)
 
 
 @dataclass
