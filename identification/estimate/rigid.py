@@ -32,6 +32,11 @@ advance (plus the plant's own input delay) is an unmodelled lag for eq. (8): on 
 benchmark's 10 us delay it biased ``k0`` by -0.9 % on short sine seeks (test) and -0.3 % on the
 synthetic drive's logs (``docs/results_identification.md``).
 
+The bias force from the whole log (:func:`whole_log_bias`): between two instants where the head is at
+rest the rigid body's velocity change is ``k0`` times the integral of the total force, so the bias is
+minus the mean current over the log plus a velocity correction -- the continuity of the velocity
+from seek to seek, which a per-seek fit with free initial position and velocity throws away.
+
 Two further misprints in Section 3.1 are handled as follows: the cost ``J`` uses
 ``sum_j sum_k 1 = (i+1)(i+2)/2`` as the regressor of ``b1`` while the printed normal equations use
 ``sum_{j=0}^{i} j = i(i+1)/2``; and the printed solution vector is the LS coefficient of ``+b1``
@@ -50,7 +55,7 @@ from identification.estimate.linalg import SegmentProjector, lstsq, white_cov
 from identification.model.plant import ModalPlant
 
 __all__ = ["double_sum", "Eq8Fit", "eq8_fit", "k0_from_b0", "zoh_rigid_response", "bias_response", "RigidFit",
-           "rigid_fit", "SegmentProjector"]
+           "rigid_fit", "BiasEstimate", "whole_log_bias", "SegmentProjector"]
 
 
 # ------------------------------------------------------------------------------------ eq. (8)
@@ -285,3 +290,70 @@ def rigid_fit(current_a, position_track, segments, dt: float, delay_range=(0.0, 
     sb = np.sqrt(cov[1, 1] / k0 ** 2 + bias ** 2 * cov[0, 0] / k0 ** 2)
     return RigidFit(k0, bias, float(d * dt), float(np.sqrt(np.mean(r ** 2))),
                     {"k0": float(np.sqrt(cov[0, 0])), "bias_a": float(sb)}, grid * dt, costs)
+
+
+@dataclass
+class BiasEstimate:
+    """Result of :func:`whole_log_bias`: ``bias_a`` [A] and its standard deviation ``std_a`` [A]
+    (batch means over the chunks), the number of chunks and the time they span [s]."""
+    bias_a: float
+    std_a: float
+    n_chunks: int
+    span_s: float
+
+
+def whole_log_bias(current_a, position_track, rest_windows, k0: float, dt: float, delay_s: float = 0.0) -> BiasEstimate:
+    """The bias force from the whole log: the rigid body's momentum balance between rest windows.
+
+    Between the middles ``c_j`` of consecutive rest windows (e.g. the settle windows of every
+    settled seek, in time order) the rigid body's velocity changes by ``k0 dt sum (u + bias + w)``
+    (``w`` the unlogged force noise; the modes' and the delay's contributions vanish at rest), so
+    each chunk ``[c_j, c_{j+1})`` gives
+    ``b_j = (v_{j+1} - v_j) / (k0 T_j) - mean(u[c_j - m .. c_{j+1} - m))`` with ``v_j`` the LS slope
+    of the position over rest window ``j`` [track/s], ``T_j`` the chunk's duration and ``m`` the
+    whole-sample delay.  The estimate is their time-weighted mean, in which the velocities
+    telescope: ``bias = (v_last - v_first) / (k0 T) - mean(u)`` over the whole span -- the mean
+    current pins it, to ``std(w) / sqrt(samples)``.  Its standard deviation is the batch-means one
+    of the chunk estimates (it also counts the velocity estimates' errors, which telescope away in
+    the estimate itself: slightly conservative).
+
+    Parameters
+    ----------
+    current_a : array_like, shape (n,) or (n, L)
+        The current as the plant sees it [A] (sub-step currents averaged).
+    position_track : array_like
+        Measured head position [track].
+    rest_windows : sequence of (int, int)
+        Half-open index ranges where the head rests (at least 3 of them, 4 samples each).
+    k0 : float
+        Rigid-body gain [track/(A s^2)] (enters only the small velocity correction).
+    dt : float
+        Sample period [s].
+    delay_s : float
+        Input delay [s].
+    """
+    u = np.asarray(current_a, dtype=float)
+    u = u.mean(axis=1) if u.ndim == 2 else u
+    y = np.asarray(position_track, dtype=float)
+    wins = sorted((int(a), int(b)) for a, b in rest_windows if b - a >= 4)
+    if len(wins) < 3:
+        raise ValueError(f"whole_log_bias: need at least 3 rest windows of 4 samples, got {len(wins)}")
+    m = int(round(delay_s / dt))
+    centres, v = [], []
+    for a, b in wins:
+        t = np.arange(b - a) * dt
+        v.append(np.polyfit(t - t.mean(), y[a:b], 1)[0])
+        centres.append((a + b) // 2)
+    c = np.array(centres)
+    cs = np.r_[0.0, np.cumsum(u)]
+    lo, hi = np.clip(c[:-1] - m, 0, len(u)), np.clip(c[1:] - m, 0, len(u))
+    n = (c[1:] - c[:-1]).astype(float)
+    ok = n > 0
+    T = n[ok] * dt
+    bj = np.diff(v)[ok] / (k0 * T) - (cs[hi] - cs[lo])[ok] / n[ok]
+    w = T / T.sum()
+    b = float(w @ bj)
+    k = len(bj)
+    std = float(np.sqrt(np.sum(w ** 2 * (bj - b) ** 2) * k / max(k - 1, 1)))
+    return BiasEstimate(b, std, k, float(T.sum()))
+
