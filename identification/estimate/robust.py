@@ -29,6 +29,11 @@ c. Standard deviations from the Jacobian of the whitened problem with respect to
    segments, :func:`identification.estimate.linalg.sandwich_cov`) for the colour the AR model leaves;
    the ratio to the plain ``s^2 (J^T J)^-1`` is reported (``diagnostics["std_inflation_median"]``).
    They are statistical only: model error is not in them.
+d. The bias force from the whole log (``bias_from="whole-log"``, default): the rigid body's momentum
+   balance between the settle windows of all seeks (:func:`identification.estimate.rigid.whole_log_bias`),
+   which keeps the velocity's continuity from seek to seek that the per-seek fit of (b) frees; its
+   standard deviation is the batch-means one.  The per-seek fit's bias (a nuisance there) is in
+   ``diagnostics["bias_per_seek"]``.
 
 Every threshold is a named field of :class:`identification.estimate.settings.RobustSettings`.
 """
@@ -43,10 +48,10 @@ from identification.estimate.linalg import sandwich_cov, white_cov
 from identification.estimate.pencil import matrix_pencil, stabilisation_diagram
 from identification.estimate.prony import z_to_modal
 from identification.estimate.result import Identification
-from identification.estimate.rigid import rigid_fit
+from identification.estimate.rigid import rigid_fit, whole_log_bias
 from identification.estimate.settings import RobustSettings
 from identification.estimate.varpro import VarPro, ar_whitener, detect_period, periodic_columns
-from identification.logs.seeklog import SeekLog
+from identification.logs.seeklog import SeekLog, segment_seeks
 from identification.model.plant import ModalPlant, Mode
 
 __all__ = ["RobustIdentifier"]
@@ -326,6 +331,21 @@ class _Run:
             if len(x) > 1:
                 x = self.refine(vp, x, s.final_nfev)
 
+    def bias(self, k0: float, delay_s: float, per_seek: float, per_seek_sd: float):
+        """(d) ``(bias_a, std)`` [A]: from the whole log, or the per-seek fit's (``bias_from``)."""
+        self.diag["bias_per_seek"] = {"bias_a": per_seek, "std": per_seek_sd}
+        if self.s.bias_from == "whole-log":
+            rest = [(q.settle, q.end) for q in segment_seeks(self.log) if q.settled]
+            try:
+                be = whole_log_bias(self.u, self.y, rest, k0, self.dt, delay_s)
+            except ValueError as exc:                # fewer than 3 rest windows: the per-seek value
+                self.diag["bias_whole_log_error"] = str(exc)
+            else:
+                self.diag["bias_whole_log"] = {"bias_a": be.bias_a, "std": be.std_a, "n_chunks": be.n_chunks,
+                                               "span_s": be.span_s}
+                return be.bias_a, be.std_a
+        return per_seek, per_seek_sd
+
     def identify(self) -> Identification:
         rf, x = self.start()
         x, n_stage = self.search_stage(x)
@@ -340,10 +360,10 @@ class _Run:
                        "gain": _ratio_std(c, cc, 2 + i)})
                  for i in np.argsort(f)]
         log = self.log
-        plant = ModalPlant(k0=float(c[0]), modes=modes, bias_a=float(c[1] / c[0]), delay_s=float(d * self.dt),
+        bias, bias_sd = self.bias(float(c[0]), float(d * self.dt), float(c[1] / c[0]), _ratio_std(c, cc, 1))
+        plant = ModalPlant(k0=float(c[0]), modes=modes, bias_a=bias, delay_s=float(d * self.dt),
                            sample_rate_hz=self.fs, track_pitch_nm=log.track_pitch_nm,
-                           std={"k0": float(sd[nx]), "bias_a": _ratio_std(c, cc, 1),
-                                "delay_s": float(sd[2 * R] * self.dt)})
+                           std={"k0": float(sd[nx]), "bias_a": bias_sd, "delay_s": float(sd[2 * R] * self.dt)})
         r_oe = vp0.solve(x)[2]
         diag = self.diag
         if self.nuisance_period is not None:

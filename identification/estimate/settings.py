@@ -116,9 +116,10 @@ class RobustSettings(IdentifySettings):
         pole's damping used as a start [-]), ``rigid_delay_range_samples`` / ``rigid_delay_grid``
         (grid of the rigid fit's delay search [samples] / [points]), ``stabilisation_max_order``
         (largest pencil order of the stabilisation diagram, in poles).
-    Noise model and covariance
+    Noise model, covariance, bias
         ``ar_order`` (AR whitening order [samples], 0 disables), ``cov`` (``"newey-west"`` or
-        ``"cluster"``), ``nw_lags`` (Newey-West lags [samples]).
+        ``"cluster"``), ``nw_lags`` (Newey-West lags [samples]), ``bias_from`` (``"whole-log"``:
+        the momentum balance over the whole log; ``"seeks"``: the per-seek output-error fit's).
     Repeatable run-out
         ``periodic`` (``"auto"``: detected; None: none; or the period [samples]),
         ``periodic_harmonics`` (harmonics fitted), ``periodic_search_samples`` (periods tried by the
@@ -156,6 +157,7 @@ class RobustSettings(IdentifySettings):
     ar_order: int = 32
     cov: str = "newey-west"
     nw_lags: int = 32
+    bias_from: str = "whole-log"
     periodic: object = "auto"
     periodic_harmonics: int = 10
     periodic_search_samples: tuple = (20, 2000)
@@ -182,6 +184,8 @@ class RobustSettings(IdentifySettings):
         super().__post_init__()
         if self.cov not in ("newey-west", "cluster"):
             raise ValueError(f"cov must be 'newey-west' or 'cluster', got {self.cov!r}")
+        if self.bias_from not in ("whole-log", "seeks"):
+            raise ValueError(f"bias_from must be 'whole-log' or 'seeks', got {self.bias_from!r}")
         if not (self.periodic in ("auto", None) or (isinstance(self.periodic, numbers.Integral)
                                                        and not isinstance(self.periodic, bool) and self.periodic >= 2)):
             raise ValueError(f"periodic must be 'auto', None or a period >= 2 [samples], got {self.periodic!r}")

@@ -151,7 +151,7 @@ class VarPro:
             D[:, :R] = (cols[:, :R] - X[:, 2:2 + R]) / hf * c[2:2 + R]
             D[:, R:2 * R] = (cols[:, R:] - X[:, 2:2 + R]) / hz * c[2:2 + R]
         Xd = self.columns(f, z, d + h)
-        D[:, 2 * R] = (Xd - X[:, :2 + R]) @ c[:2 + R] / h
+        D[:, 2 * R] = (Xd - X) @ c / h
         if full:
             return -np.column_stack([D, X]), r
         return -(D - Q @ (Q.T @ D))
