@@ -11,13 +11,14 @@ from identification.logs.seeklog import SeekLog
 from identification.loop.residual import LinearModel, Windows, fit_percent, seek_windows, simulate
 from identification.loop.residual_analysis import (correlations, detect_spindle, nonlinear_tests, spectra,
                                               synchronous_average)
-from seekopt.drive.presets import default_truth_plant
-from seekopt.evaluate.synth import SynthConfig, synthesize
+from tests.drives import Schedule, make_log, modal_plant, nss_drive
 
 
 @pytest.fixture(scope="module")
 def small_log():
-    return synthesize(SynthConfig(n_seeks=10, seed=3))
+    """10 seeks of the NSS-like independent drive (tests/drives) with the benchmark's noise."""
+    drive = nss_drive(seed=3)
+    return make_log(drive, Schedule(n_seeks=10, seed=3)), modal_plant(drive)
 
 
 def _project(windows, basis, x):
@@ -46,7 +47,8 @@ def test_linear_engine_equals_discrete_plant(small_log, effects):
 
 
 def test_exact_model_leaves_small_residual_without_noise():
-    log, truth = synthesize(SynthConfig(n_seeks=8, seed=4, noise=False, rro=False))
+    drive = nss_drive(noise=False)
+    log, truth = make_log(drive, Schedule(n_seeks=8, seed=4), noise_seed=None), modal_plant(drive)
     res = simulate(truth, log, seek_windows(log), continuous=False)
     # only the servo-rate ZOH of the mean sub-step current differs from the drive
     assert res.rms < 0.05

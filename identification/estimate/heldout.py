@@ -20,7 +20,7 @@ from identification.estimate.varpro import periodic_columns
 from identification.logs.seeklog import SeekLog
 from identification.model.plant import ModalPlant
 
-__all__ = ["runout_signal", "predict_segments", "heldout_fit"]
+__all__ = ["runout_signal", "predict_segments", "initial_velocities", "heldout_fit"]
 
 
 def runout_signal(n: int, runout: dict | None) -> np.ndarray:
@@ -32,6 +32,32 @@ def runout_signal(n: int, runout: dict | None) -> np.ndarray:
     return Z @ np.ravel(np.column_stack([runout["cos_track"], runout["sin_track"]]))
 
 
+def _response(log: SeekLog, plant: ModalPlant, starts, steady: bool = True, runout=None) -> np.ndarray:
+    """The plant's response [track] to the measured current: modes over the whole log, rigid body and
+    bias restarted (position and velocity 0) at each start, plus the run-out if given."""
+    dt, u = log.dt, log.input_current()
+    d = plant.delay_s
+    y = plant.k0 * (zoh_rigid_response(u, dt, d, starts) + plant.bias_a * bias_response(len(u), dt, starts))
+    if plant.modes:
+        M = mode_regressors(u, [m.freq_hz for m in plant.modes], [m.zeta for m in plant.modes], dt, d, steady)
+        y = y + M @ (plant.k0 * np.array([m.gain for m in plant.modes]))
+    if runout:
+        y = y + runout_signal(len(u), runout)
+    return y
+
+
+def _initial_conditions(log: SeekLog, plant: ModalPlant, segments, init, t_local, runout, steady: bool = True):
+    """The per-segment LS fit of ``p0 + v0 t`` (over ``init[j]``, default the segment) to what the
+    model leaves unexplained, evaluated at ``t_local[j]`` [samples from the segment start]; and the
+    model's response."""
+    y = _response(log, plant, [a for a, _ in segments], steady, runout)
+    fit_on = list(segments) if init is None else list(init)
+    proj = SegmentProjector(fit_on, offsets=[ia - a for (a, _), (ia, _) in zip(segments, fit_on)])
+    if len(proj.segments) != len(fit_on):
+        raise ValueError("predict_segments: an empty initial-condition range")
+    return proj.polynomial(proj.take(log.position_track - y), t_local), y
+
+
 def predict_segments(log: SeekLog, plant: ModalPlant, segments, init=None, steady: bool = True, runout=None):
     """Predicted position [track] on each segment ``[i0, i1)`` (list of arrays).
 
@@ -41,21 +67,15 @@ def predict_segments(log: SeekLog, plant: ModalPlant, segments, init=None, stead
     segment; default the whole segment; :class:`identification.estimate.linalg.SegmentProjector`),
     plus the identified run-out (:func:`runout_signal`) if given.
     """
-    dt, u = log.dt, log.input_current()
-    starts = [a for a, _ in segments]
-    d = plant.delay_s
-    y = plant.k0 * (zoh_rigid_response(u, dt, d, starts) + plant.bias_a * bias_response(len(u), dt, starts))
-    if plant.modes:
-        M = mode_regressors(u, [m.freq_hz for m in plant.modes], [m.zeta for m in plant.modes], dt, d, steady)
-        y = y + M @ (plant.k0 * np.array([m.gain for m in plant.modes]))
-    if runout:
-        y = y + runout_signal(len(u), runout)
-    fit_on = list(segments) if init is None else list(init)
-    proj = SegmentProjector(fit_on, offsets=[ia - a for (a, _), (ia, _) in zip(segments, fit_on)])
-    if len(proj.segments) != len(fit_on):
-        raise ValueError("predict_segments: an empty initial-condition range")
-    ic = proj.polynomial(proj.take(log.position_track - y), [np.arange(b - a) for a, b in segments])
+    ic, y = _initial_conditions(log, plant, segments, init, [np.arange(b - a) for a, b in segments], runout, steady)
     return [y[a:b] + p for (a, b), p in zip(segments, ic)]
+
+
+def initial_velocities(log: SeekLog, plant: ModalPlant, segments, runout=None) -> np.ndarray:
+    """The rigid body's velocity [track/s] at the start of each segment: the ``v0`` of the initial
+    position and velocity fitted over the whole segment (as :func:`predict_segments`)."""
+    ic, _ = _initial_conditions(log, plant, segments, None, [np.array([0.0, 1.0])] * len(segments), runout)
+    return np.array([(p[1] - p[0]) / log.dt for p in ic])
 
 
 def heldout_fit(log: SeekLog, plant: ModalPlant, seeks, init: str = "seek", runout=None) -> float:

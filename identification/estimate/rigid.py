@@ -55,7 +55,7 @@ from identification.estimate.linalg import SegmentProjector, lstsq, white_cov
 from identification.model.plant import ModalPlant
 
 __all__ = ["double_sum", "Eq8Fit", "eq8_fit", "k0_from_b0", "zoh_rigid_response", "bias_response", "RigidFit",
-           "rigid_fit", "BiasEstimate", "whole_log_bias", "SegmentProjector"]
+           "rigid_fit", "BiasEstimate", "momentum_bias", "whole_log_bias", "SegmentProjector"]
 
 
 # ------------------------------------------------------------------------------------ eq. (8)
@@ -214,12 +214,19 @@ def zoh_rigid_response(current_a, dt: float, delay_s: float, starts) -> np.ndarr
         L = u.shape[1]
         fine = zoh_rigid_response(u.reshape(-1), dt / L, delay_s, [L * int(s) for s in starts])
         return fine[::L]
+    dp_in, dv_in, h = _increments(u, dt, delay_s)
+    return _restarted_rigid(dp_in, dv_in, h, starts)
+
+
+def _increments(u, dt: float, delay_s: float):
+    """Per-sample position and velocity increments of the unit rigid block driven by the current
+    ``u`` (1-D, held over each sample; before sample 0 it is ``u[0]``), and ``h``."""
     n = len(u)
     m, h, gn, go, _ = _rigid_block(dt, delay_s)
     pad = np.r_[np.full(m + 1, u[0]), u]
     un = pad[1:n + 1]          # u[k - m]
     uo = pad[:n]               # u[k - m - 1]
-    return _restarted_rigid(gn[0] * un + go[0] * uo, gn[1] * un + go[1] * uo, h, starts)
+    return gn[0] * un + go[0] * uo, gn[1] * un + go[1] * uo, h
 
 
 def bias_response(n: int, dt: float, starts) -> np.ndarray:
@@ -302,58 +309,76 @@ class BiasEstimate:
     span_s: float
 
 
-def whole_log_bias(current_a, position_track, rest_windows, k0: float, dt: float, delay_s: float = 0.0) -> BiasEstimate:
-    """The bias force from the whole log: the rigid body's momentum balance between rest windows.
+def momentum_bias(current_a, instants, velocity, k0: float, dt: float, delay_s: float = 0.0) -> BiasEstimate:
+    """The bias force from the whole log: the rigid body's momentum balance between instants where
+    its velocity is known.
 
-    Between the middles ``c_j`` of consecutive rest windows (e.g. the settle windows of every
-    settled seek, in time order) the rigid body's velocity changes by ``k0 dt sum (u + bias + w)``
-    (``w`` the unlogged force noise; the modes' and the delay's contributions vanish at rest), so
-    each chunk ``[c_j, c_{j+1})`` gives
-    ``b_j = (v_{j+1} - v_j) / (k0 T_j) - mean(u[c_j - m .. c_{j+1} - m))`` with ``v_j`` the LS slope
-    of the position over rest window ``j`` [track/s], ``T_j`` the chunk's duration and ``m`` the
-    whole-sample delay.  The estimate is their time-weighted mean, in which the velocities
-    telescope: ``bias = (v_last - v_first) / (k0 T) - mean(u)`` over the whole span -- the mean
-    current pins it, to ``std(w) / sqrt(samples)``.  Its standard deviation is the batch-means one
-    of the chunk estimates (it also counts the velocity estimates' errors, which telescope away in
-    the estimate itself: slightly conservative).
+    Between consecutive instants ``k_j < k_{j+1}`` the velocity of the rigid block changes by
+    ``k0`` times its response to the current (the same ZOH and delay as :func:`zoh_rigid_response`,
+    multirate sub-steps included) plus ``k0 dt`` per sample of bias (the force channel), plus the
+    unlogged force noise, so each chunk gives ``b_j = ((v_{j+1} - v_j) / k0 - dV_j) / (dt N_j)``
+    (``dV_j`` the unit-``k0`` velocity change due to the current, ``N_j`` the samples).  The
+    estimate is their time-weighted mean, in which the velocities telescope: only the first and the
+    last velocity's errors remain, divided by ``k0`` times the whole span, and the force noise
+    averages over the whole log.  Its standard deviation is the batch-means one of the ``b_j`` (it
+    also counts the inner velocities' errors, which telescope away in the estimate itself: slightly
+    conservative).
 
     Parameters
     ----------
     current_a : array_like, shape (n,) or (n, L)
-        The current as the plant sees it [A] (sub-step currents averaged).
+        The current as the plant sees it [A] (:meth:`identification.logs.seeklog.SeekLog.input_current`).
+    instants : sequence of int
+        Sample indices, increasing (at least 3).
+    velocity : sequence of float
+        The rigid body's velocity at each instant [track/s].
+    k0 : float
+        Rigid-body gain [track/(A s^2)].
+    dt, delay_s : float
+        Sample period and input delay [s].
+    """
+    k_ = np.asarray(instants, dtype=int)
+    v = np.asarray(velocity, dtype=float)
+    if len(k_) < 3 or np.any(np.diff(k_) <= 0) or len(v) != len(k_):
+        raise ValueError(f"momentum_bias: need at least 3 increasing instants with a velocity each, got {len(k_)}")
+    u = np.asarray(current_a, dtype=float)
+    L = u.shape[1] if u.ndim == 2 else 1
+    _, dv_in, _ = _increments(u.reshape(-1), dt / L, delay_s)
+    cs = np.r_[0.0, np.cumsum(dv_in)]
+    dV = cs[L * k_[1:]] - cs[L * k_[:-1]]
+    gf_v = _rigid_block(dt / L)[4][1] * L            # velocity per sample of a unit force [s]
+    n = np.diff(k_).astype(float)
+    bj = (np.diff(v) / k0 - dV) / (gf_v * n)
+    w = n / n.sum()
+    b = float(w @ bj)
+    k = len(bj)
+    std = float(np.sqrt(np.sum(w ** 2 * (bj - b) ** 2) * k / max(k - 1, 1)))
+    return BiasEstimate(b, std, k, float(n.sum() * dt))
+
+
+def whole_log_bias(current_a, position_track, rest_windows, k0: float, dt: float, delay_s: float = 0.0) -> BiasEstimate:
+    """:func:`momentum_bias` with the velocity at the middle of each rest window (e.g. the settle
+    windows) taken as the LS slope of the position over it -- model-free, exact for a uniformly
+    accelerated head, approximate while it still settles.
+
+    Parameters
+    ----------
     position_track : array_like
         Measured head position [track].
     rest_windows : sequence of (int, int)
         Half-open index ranges where the head rests (at least 3 of them, 4 samples each).
-    k0 : float
-        Rigid-body gain [track/(A s^2)] (enters only the small velocity correction).
-    dt : float
-        Sample period [s].
-    delay_s : float
-        Input delay [s].
+    current_a, k0, dt, delay_s
+        As :func:`momentum_bias`.
     """
-    u = np.asarray(current_a, dtype=float)
-    u = u.mean(axis=1) if u.ndim == 2 else u
     y = np.asarray(position_track, dtype=float)
     wins = sorted((int(a), int(b)) for a, b in rest_windows if b - a >= 4)
     if len(wins) < 3:
         raise ValueError(f"whole_log_bias: need at least 3 rest windows of 4 samples, got {len(wins)}")
-    m = int(round(delay_s / dt))
     centres, v = [], []
     for a, b in wins:
-        t = np.arange(b - a) * dt
-        v.append(np.polyfit(t - t.mean(), y[a:b], 1)[0])
-        centres.append((a + b) // 2)
-    c = np.array(centres)
-    cs = np.r_[0.0, np.cumsum(u)]
-    lo, hi = np.clip(c[:-1] - m, 0, len(u)), np.clip(c[1:] - m, 0, len(u))
-    n = (c[1:] - c[:-1]).astype(float)
-    ok = n > 0
-    T = n[ok] * dt
-    bj = np.diff(v)[ok] / (k0 * T) - (cs[hi] - cs[lo])[ok] / n[ok]
-    w = T / T.sum()
-    b = float(w @ bj)
-    k = len(bj)
-    std = float(np.sqrt(np.sum(w ** 2 * (bj - b) ** 2) * k / max(k - 1, 1)))
-    return BiasEstimate(b, std, k, float(T.sum()))
-
+        if (b - a) % 2 == 0:                         # an odd count: the middle is a sample
+            a += 1
+        t = (np.arange(b - a) - (b - a - 1) / 2) * dt
+        v.append(np.polyfit(t, y[a:b], 1)[0])
+        centres.append((a + b - 1) // 2)
+    return momentum_bias(current_a, centres, v, k0, dt, delay_s)

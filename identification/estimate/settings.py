@@ -119,7 +119,8 @@ class RobustSettings(IdentifySettings):
     Noise model, covariance, bias
         ``ar_order`` (AR whitening order [samples], 0 disables), ``cov`` (``"newey-west"`` or
         ``"cluster"``), ``nw_lags`` (Newey-West lags [samples]), ``bias_from`` (``"whole-log"``:
-        the momentum balance over the whole log; ``"seeks"``: the per-seek output-error fit's).
+        the rigid body's momentum balance from seek to seek over the whole log; ``"seeks"``: the
+        per-seek output-error fit's).
     Repeatable run-out
         ``periodic`` (``"auto"``: detected; None: none; or the period [samples]),
         ``periodic_harmonics`` (harmonics fitted), ``periodic_search_samples`` (periods tried by the

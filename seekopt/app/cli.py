@@ -50,7 +50,7 @@ def _input_errors() -> tuple:
     from seekopt.evaluate.synth import SynthError
     errs = [UsageError, LogError, PlantError, ControllerError, ProfileError, LoopError, SynthError,
             FileNotFoundError, FileExistsError, IsADirectoryError, NotADirectoryError, PermissionError]
-    for mod, name in (("seekopt.design.ocp", "DesignInfeasible"), ("seekopt.evaluate.sweep", "SweepError"),
+    for mod, name in (("seekopt.design.problem", "ProblemError"), ("seekopt.evaluate.sweep", "SweepError"),
                       ("seekopt.export.tables", "ExportError"), ("seekopt.app.demo", "DemoError")):
         try:
             errs.append(getattr(__import__(mod, fromlist=[name]), name))
@@ -306,8 +306,13 @@ def cmd_identify(args) -> int:
 
 
 def cmd_design(args) -> int:
-    """``seekopt design``: minimum seek-settle-time profile -> Profile CSV (see :mod:`seekopt.design.ocp`)."""
-    from seekopt.design.ocp import DesignError, RobustSpec, SeekDesigner
+    """``seekopt design``: minimum seek-settle-time profile -> Profile CSV (see :mod:`seekopt.design.designer`).
+
+    The problem is checked before any QP is built (closed loop of every plant of the robust set, a
+    seek beyond the design horizon at ``--imax``): one line, exit 2."""
+    from seekopt.design.designer import DesignError, SeekDesigner
+    from seekopt.design.problem import ProblemError, SeekProblem
+    from seekopt.design.robust import RobustSpec
     check_output_file(args.output, "-o", (".csv",))
     for name, v in (("--imax [A]", args.imax), ("--settle [track]", args.settle)):
         check_positive(v, name)
@@ -319,8 +324,13 @@ def cmd_design(args) -> int:
     except ValueError as exc:
         raise UsageError(f"--robust: {exc}") from None
     try:
+        designer = SeekDesigner(SeekProblem(plant, controller, args.imax, args.settle, robust=robust))
+        designer.check_seek(args.tracks)            # impossible seeks: before any QP is built
+    except ProblemError as exc:
+        raise UsageError(f"{args.plant}: {exc}") from None
+    try:
         with progress(args, f"designing the {args.tracks:g}-track seek"):
-            res = SeekDesigner(plant, controller, args.imax, args.settle, robust).design(args.tracks)
+            res = designer.design(args.tracks)
     except DesignError as exc:
         print(f"seekopt design: solver failure: {str(exc).splitlines()[0]}", file=sys.stderr)
         return 1
@@ -328,9 +338,10 @@ def cmd_design(args) -> int:
     prof.meta.update(plant_file=Path(args.plant).name, controller_name=controller.name)
     prof.to_csv(args.output)
     m = res.metrics
+    extra = f", {res.fallback_solves} by a fallback solver" if res.fallback_solves else ""
     print(f"wrote {args.output}: {prof.n} samples; {args.tracks:g} tracks, seek {m.seek_time_s * 1e3:.3f} ms, "
           f"seek-settle {m.settle_time_s * 1e3:.3f} ms ({m.ratio_tbb:.2f} T_bb) on the design plant, "
-          f"peak current {m.peak_current_a:.3f} A; {res.n_solves} QPs ({res.solver}) in {res.solve_time_s:.3f} s")
+          f"peak current {m.peak_current_a:.3f} A; {res.n_solves} QPs ({res.solver}{extra}) in {res.solve_time_s:.3f} s")
     return 0
 
 
