@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from identification.logs.seeklog import SeekLog, read_log, write_log
+from identification.logs import SeekLog, read_log, write_log
 from identification.model.plant import ModalPlant, PlantError
 from seekopt.app import cli
 from seekopt.app.cli import main

@@ -175,11 +175,11 @@ def check_output_dir(path, option: str) -> None:
 
 
 def read_log_cli(path, current_unit: str = "A", args=None):
-    """Read a seek log for a command: :func:`identification.logs.seeklog.read_log`, currents converted
+    """Read a seek log for a command: :func:`identification.logs.read_log`, currents converted
     from ``current_unit`` (``--current-unit``) to A, and a warning for currents implausible for a
     disk drive (:func:`identification.logs.checks.unit_warnings`).  A bad log raises LogError."""
     from identification.logs.checks import convert_current, unit_warnings
-    from identification.logs.seeklog import read_log
+    from identification.logs import read_log
     log = convert_current(read_log(path), current_unit or "A")
     for w in unit_warnings(log):
         warn(args, w)
@@ -228,7 +228,7 @@ def _parse_effect(text: str) -> dict:
 
 # ------------------------------------------------------------------ commands
 def cmd_synth(args) -> int:
-    from identification.logs.seeklog import write_log
+    from identification.logs import write_log
     from seekopt.drive.presets import default_truth_plant
     from seekopt.evaluate.synth import SynthConfig, synthesize
     check_output_file(args.output, "-o", LOG_SUFFIXES)
@@ -370,7 +370,7 @@ def cmd_bench(args) -> int:
 def cmd_loop(args) -> int:
     from identification.loop.closing import close_loop
     from identification.estimate.identify import identify
-    from identification.logs.seeklog import read_log
+    from identification.logs import read_log
     from identification.loop.report import write_report
     log = read_log(args.log)
     val = read_log(args.validate) if args.validate else None
