@@ -1,0 +1,560 @@
+"""Full-stroke seeks: accelerate - coast - arrive, under an optional velocity limit.
+
+A drive's stroke is hundreds of thousands of tracks; above a few thousand the VCM's back-EMF caps the
+velocity and the seek coasts.  Designing such a seek as one rest-to-rest QP makes the problem grow with
+the coast; here the coast is free and only one short segment is optimised.
+
+The velocity step
+-----------------
+A *velocity step* of ``d`` tracks per sample is a feedforward ``u_A`` over ``N`` samples and a reference
+``r_A`` that leave the 2DOF loop ``u = u_ff + C(r - y)`` on its ramp equilibrium::
+
+    r_A(k) = ramp(k) = k0 Ts^2 sum_j u_A(j) (k - tau/Ts - j - 1/2)      for k >= N   (ZOH rigid body with
+    k0 Ts^2 sum_j u_A(j) = d                                                          input delay tau)
+
+(the head moving at ``d`` track/sample with zero current, the modes at rest, zero error: the loop with a
+double-integrator plant and an integrating controller is type 3, so it tracks the ramp with zero error).
+It is designed by a QP on the condensed linear loop (:class:`seekopt.design.qp.LoopMaps`, from the one
+simulator) over the same plant set, current limit and unmodelled-mode guard as
+:class:`seekopt.design.ocp.SeekDesigner`: minimum ``N`` such that ``|y_i(k) - r_A(k)| <= beta band`` for
+``k >= N`` on every plant ``i`` of the set, the total current within ``gamma Imax - |bias|`` (so that the
+mirrored step, ``-u_A``, with the hold current is within ``gamma Imax`` too), the rigid velocity never above
+``d``, and the guard's residual within half its tolerance (the two steps of a seek add).
+
+The seek
+--------
+The loop is linear and time-invariant, so a seek of ``K`` tracks is the difference of two steps::
+
+    m = ceil(K / d),  s = K / (m d) <= 1
+    u(k) = s (u_A(k) - u_A(k - m)),   r(k) = s (r_A(k) - r_A(k - m))
+
+The head accelerates, coasts at ``s d`` with zero feedforward, and arrives with the mirror of the
+acceleration; after both steps the reference is exactly ``s m d = K`` and the head is at rest there
+(rest-to-rest exactness), and the position error is ``s (e_A(k) - e_A(k - m))`` with ``e_A = y_A - r_A``:
+the arrival settles like the step settles onto its ramp.  The design cost is one small QP per velocity,
+whatever the coast; every seek is checked on the full design plant by
+:func:`seekopt.drive.simulator.simulate_2dof` (via :func:`seekopt.design.metrics.evaluate_profile`).
+Shorter seeks (no room for a coast) go to :class:`seekopt.design.ocp.SeekDesigner`; its peak rigid
+velocity is checked against the limit.
+
+Velocity limit from the plant (``ModalPlant.meta`` keys, SI units)
+------------------------------------------------------------------
+``vmax_mps``
+    Velocity limit at the head [m/s].
+``back_emf_v_per_mps`` and ``supply_v`` (optional ``coil_resistance_ohm``, default 0)
+    Back-EMF constant at the head [V/(m/s)] and amplifier supply [V]: the amplifier still drives ``Imax``
+    up to ``vmax = (supply_v - coil_resistance_ohm * Imax) / back_emf_v_per_mps``.
+``stroke_mm`` (or ``stroke_track``)
+    Full stroke [mm] (or [track] at the plant's track pitch).
+Velocities in m/s become track/s with the plant's ``track_pitch_nm``.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from identification.model.plant import ModalPlant
+
+__all__ = ["LongSeekSpec", "VelocityStep", "LongSeekDesigner", "LongSeekError", "vmax_from_plant",
+           "stroke_from_plant", "t_accel_coast_decel"]
+
+
+class LongSeekError(ValueError):
+    """Bad long-seek settings (one-line message)."""
+
+
+def _pos(v, what):
+    if v is not None and not (math.isfinite(v) and v > 0):
+        raise LongSeekError(f"{what} must be a positive number (got {v})")
+    return None if v is None else float(v)
+
+
+def vmax_from_plant(plant: ModalPlant, imax: float) -> float | None:
+    """Velocity limit [track/s] from the plant's metadata (module notes), or None."""
+    m, pitch = plant.meta or {}, plant.track_pitch_nm
+    try:
+        if "vmax_mps" in m:
+            v = float(m["vmax_mps"])
+        elif "back_emf_v_per_mps" in m and "supply_v" in m:
+            v = (float(m["supply_v"]) - float(m.get("coil_resistance_ohm", 0.0)) * imax) / float(
+                m["back_emf_v_per_mps"])
+        else:
+            return None
+    except (TypeError, ValueError):
+        raise LongSeekError("plant meta: velocity-limit keys must be numbers") from None
+    if not pitch:
+        raise LongSeekError("plant meta gives a velocity limit in m/s but the plant has no track_pitch_nm")
+    if not (math.isfinite(v) and v > 0):
+        raise LongSeekError(f"plant meta: velocity limit {v:g} m/s is not positive (supply below R*Imax?)")
+    return v / (pitch * 1e-9)
+
+
+def stroke_from_plant(plant: ModalPlant) -> float | None:
+    """Full stroke [track] from ``meta["stroke_track"]`` or ``meta["stroke_mm"]`` (module notes), or None."""
+    m = plant.meta or {}
+    try:
+        if "stroke_track" in m:
+            return _pos(float(m["stroke_track"]), "plant meta stroke_track")
+        if "stroke_mm" in m and plant.track_pitch_nm:
+            return _pos(float(m["stroke_mm"]) * 1e6 / plant.track_pitch_nm, "plant meta stroke_mm")
+    except (TypeError, ValueError):
+        raise LongSeekError("plant meta: stroke must be a number") from None
+    return None
+
+
+def t_accel_coast_decel(tracks: float, k0: float, imax: float, vmax: float | None) -> float:
+    """Rigid-body minimum seek time [s] with current limit ``imax`` and velocity limit ``vmax`` [track/s]:
+    ``K / vmax + vmax / (k0 Imax)`` when the seek reaches ``vmax``, else ``T_bb = 2 sqrt(K / (k0 Imax))``."""
+    a, K = k0 * imax, abs(tracks)
+    if vmax is None or K <= vmax * vmax / a:
+        return 2.0 * math.sqrt(K / a)
+    return K / vmax + vmax / a
+
+
+@dataclass
+class LongSeekSpec:
+    """Long-seek settings.
+
+    Parameters
+    ----------
+    vmax_track_s : float, optional
+        Velocity limit [track/s] (None: none; :meth:`from_plant` reads the plant's metadata).
+    stroke_track : float, optional
+        Full stroke [track]: longer seeks are refused.
+    tail_s : float
+        Time after the velocity step over which its QP enforces the settle band [s].
+    """
+
+    vmax_track_s: float | None = None
+    stroke_track: float | None = None
+    tail_s: float = 0.008
+
+    def __post_init__(self):
+        self.vmax_track_s = _pos(self.vmax_track_s, "vmax")
+        self.stroke_track = _pos(self.stroke_track, "stroke")
+        _pos(self.tail_s, "tail_s")
+
+    @classmethod
+    def from_plant(cls, plant: ModalPlant, imax: float, vmax_track_s=None, stroke_track=None, **kw):
+        """Explicit values win over the plant's metadata (module notes)."""
+        v = vmax_track_s if vmax_track_s is not None else vmax_from_plant(plant, imax)
+        s = stroke_track if stroke_track is not None else stroke_from_plant(plant)
+        return cls(v, s, **kw)
+
+    def to_dict(self) -> dict:
+        return {"vmax_track_s": self.vmax_track_s, "stroke_track": self.stroke_track, "tail_s": self.tail_s}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "LongSeekSpec":
+        return cls(d.get("vmax_track_s"), d.get("stroke_track"), d.get("tail_s", 0.008))
+
+
+@dataclass
+class VelocityStep:
+    """A designed velocity step (module notes): from rest to ``track_per_sample`` on the ramp equilibrium.
+
+    Attributes
+    ----------
+    current_a : ndarray
+        ``u_A`` [A], ``N`` samples (zero afterwards).
+    reference_track : ndarray
+        ``r_A`` [track] for ``k <= N``; afterwards the ramp ``r_A[-1] + d (k - N)``.
+    track_per_sample : float
+        ``d`` [track/sample] (velocity ``d fs`` track/s).
+    settle_samples : int
+        Samples from the start of a step until ``|e_A| <= band`` for good (nominal linear loop): the
+        arrival of a seek settles this long after its decelerating step starts.
+    min_coast_samples : int
+        Smallest step spacing ``m`` from which every seek ``m' >= m`` settles by ``m' + settle_samples``
+        within Imax (nominal linear loop; every design is still simulated).
+    """
+
+    current_a: np.ndarray
+    reference_track: np.ndarray
+    track_per_sample: float
+    sample_rate_hz: float
+    imax_a: float
+    settle_track: float
+    settle_samples: int
+    min_coast_samples: int
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def n(self) -> int:
+        return len(self.current_a)
+
+    @property
+    def velocity_track_s(self) -> float:
+        return self.track_per_sample * self.sample_rate_hz
+
+    @property
+    def min_tracks(self) -> float:
+        """Shortest seek that coasts with this step (``m >= min_coast_samples``)."""
+        return (self.min_coast_samples - 1) * self.track_per_sample + 1e-9
+
+    def extended(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(u_A, r_A)`` over ``n`` samples with the zero feedforward and the ramp continuation."""
+        u = np.zeros(n); u[:min(n, self.n)] = self.current_a[:n]
+        nr = len(self.reference_track)
+        r = self.reference_track[-1] + self.track_per_sample * (np.arange(n) - (nr - 1))
+        r[:min(n, nr)] = self.reference_track[:n]
+        return u, r
+
+    def coast_samples(self, tracks: float) -> int:
+        """Step spacing ``m = ceil(|K| / d)``."""
+        return int(math.ceil(abs(tracks) / self.track_per_sample - 1e-12))
+
+    def compose(self, tracks: float) -> tuple[np.ndarray, np.ndarray, int, float]:
+        """``(u, r, m, s)`` of the seek of ``tracks`` (module notes); ``r`` ends at ``tracks`` exactly."""
+        m = self.coast_samples(tracks)
+        s = abs(tracks) / (m * self.track_per_sample)
+        n = m + max(self.n, len(self.reference_track))
+        u, r = self.extended(n)
+        u2, r2 = np.zeros(n), np.zeros(n)
+        u2[m:], r2[m:] = u[:n - m], r[:n - m]
+        sign = math.copysign(1.0, tracks)
+        uu, rr = sign * s * (u - u2), sign * s * (r - r2)
+        rr[-1] = float(tracks)       # s (r_A(k) - r_A(k-m)) = s m d = K on the ramp; exact end
+        return uu, rr, m, s
+
+    def to_dict(self) -> dict:
+        return {"current_a": [float(x) for x in self.current_a],
+                "reference_track": [float(x) for x in self.reference_track],
+                "track_per_sample": self.track_per_sample, "sample_rate_hz": self.sample_rate_hz,
+                "imax_a": self.imax_a, "settle_track": self.settle_track, "settle_samples": self.settle_samples,
+                "min_coast_samples": self.min_coast_samples, "meta": self.meta}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "VelocityStep":
+        return cls(np.asarray(d["current_a"], float), np.asarray(d["reference_track"], float),
+                   float(d["track_per_sample"]), float(d["sample_rate_hz"]), float(d["imax_a"]),
+                   float(d["settle_track"]), int(d["settle_samples"]), int(d["min_coast_samples"]),
+                   dict(d.get("meta") or {}))
+
+
+class _StepQP:
+    """Condensed QP of a velocity step for steps of at most ``nmax`` samples (built once, solved per ``N``).
+
+    ``x = [v, w]``: ``u = Imax v`` (``N`` samples), ``r = Ramp u + sigma w`` (``w`` on ``k < N``, 0 after).
+    """
+
+    def __init__(self, maps, nmax, horizon, k0, fs, delay_samples, imax, band, bias, hf, nlo,
+                 solver, solver_options, rho=1e-2, rho_w=1e-3, quiet=0.2, quiet_after=32):
+        from seekopt.design.qp import dm, make_qp_solver, pes_row_samples, toeplitz_rows
+        t0 = time.perf_counter()
+        N, H, L = int(nmax), int(horizon), maps[0].L
+        self.N, self.H, self.imax, self.band, self.bias = N, H, float(imax), float(band), abs(float(bias))
+        self.quiet, self.quiet_after = float(quiet), int(quiet_after)
+        self.c = k0 / fs ** 2                      # track per (A sample^2)
+        t = (np.arange(H)[:, None] - np.arange(N)[None, :]) - delay_samples
+        # reference base: the ZOH rigid response (with the delay), on its affine asymptote
+        # c (k - tau - j - 1/2) from ``ceil(tau)`` samples after the step ends
+        self.ramp = self.c * np.where(t <= 0, 0.0, np.where(t < 1, 0.5 * t * t, t - 0.5))
+        self.k_extra = int(math.ceil(delay_samples - 1e-12))
+        self.sigma = 1.0                                   # scale of the reference correction w [track]
+        self.wmax = self.c * imax * N * N                  # |w| bound: loose (the objective keeps w small)
+        E = np.eye(H, N)
+        ks = pes_row_samples(N, H)
+        ks = ks[ks >= nlo]
+        blocks, kinds = [], []
+        for i, mp in enumerate(maps):               # settle band: e_i(k) = y_i(k) - r(k), k >= N
+            Tyu = toeplitz_rows(mp.y_u, ks, N)
+            Tyr = toeplitz_rows(mp.y_r, ks, H)
+            a = np.hstack([imax * (Tyu + Tyr @ self.ramp - self.ramp[ks]), self.sigma * (Tyr @ E - E[ks])]) / band
+            blocks.append(a); kinds += [("pes", i, int(k)) for k in ks]
+        ncur = min(H, N + 40)
+        for i, mp in enumerate(maps):               # total current, every sub-step
+            rows = np.arange(ncur if i == 0 else min(H, N + 8))
+            Tiu, Tir = toeplitz_rows(mp.i_u, rows, N), toeplitz_rows(mp.i_r, rows, H)
+            blocks.append(np.hstack([Tiu + Tir @ self.ramp, Tir[:, :N] * (self.sigma / imax)]))
+            kinds += [("cur", i, int(k)) for k in np.repeat(rows, L)]
+        if hf is not None:                          # unmodelled-mode residual, nominal sub-step currents
+            G = hf
+            Tiu, Tir = toeplitz_rows(maps[0].i_u, np.arange(H), N), toeplitz_rows(maps[0].i_r, np.arange(H), H)
+            blocks.append(np.hstack([imax * G @ (Tiu + Tir @ self.ramp), self.sigma * G @ Tir @ E]) / band)
+            kinds += [("hf", 0, j) for j in range(G.shape[0])]
+        cum = np.tril(np.ones((N, N))) / N          # rigid velocity never above d; and = d at the end
+        blocks.append(np.hstack([cum, np.zeros((N, N))])); kinds += [("vel", 0, j) for j in range(N)]
+        A = np.vstack(blocks)
+        self.A = A
+        self.kind = np.array([k[0] for k in kinds]); self.sample = np.array([k[2] for k in kinds])
+        self.plant = np.array([k[1] for k in kinds])
+        D = np.eye(N) - np.eye(N, k=-1)
+        P = np.zeros((2 * N, 2 * N))
+        P[:N, :N] = 2 * rho * D.T @ D
+        P[N:, N:] = 2 * rho_w * D.T @ D
+        tail = np.nonzero((self.kind == "pes") & (self.sample >= N))[0]
+        if tail.size:
+            P += 2.0 / tail.size * A[tail].T @ A[tail]
+        P += 2e-9 * np.eye(2 * N)
+        self._H, self._A = dm(P), dm(A)
+        self.m = A.shape[0]
+        self.solver = make_qp_solver(2 * N, self.m, solver, solver_options)
+        self.fallback = None if solver == "highs" else (lambda: make_qp_solver(2 * N, self.m, "highs", None))
+        self.build_time_s = time.perf_counter() - t0
+
+    def solve(self, d: float, nseek: int, beta: float, gamma: float, hf_tol: float | None, x0=None):
+        N, m = self.N, self.m
+        lba, uba = np.full(m, -np.inf), np.full(m, np.inf)
+        pes = (self.kind == "pes") & (self.sample >= nseek)
+        lba[pes], uba[pes] = -beta, beta
+        far = pes & (self.sample >= nseek + self.quiet_after) & (self.plant == 0)   # the accelerating
+        # step's tail adds to the arrival's error: quiet it on the nominal plant (short coasts)
+        lba[far], uba[far] = -self.quiet * beta, self.quiet * beta
+        cur = self.kind == "cur"
+        lim = (gamma * self.imax - self.bias) / self.imax
+        lba[cur], uba[cur] = -lim, lim
+        hf = self.kind == "hf"
+        if hf_tol is not None:
+            lba[hf], uba[hf] = -hf_tol, hf_tol
+        vel = self.kind == "vel"
+        V = d / (self.c * self.imax * N)
+        uba[vel] = V * (1 + 1e-9)
+        last = vel & (self.sample == nseek - 1)      # one equality row (the rows after it repeat it)
+        lba[last] = uba[last] = V
+        uba[vel & (self.sample >= nseek)] = np.inf
+        lbx, ubx = np.zeros(2 * N), np.zeros(2 * N)
+        lbx[:nseek], ubx[:nseek] = -1.0, 1.0
+        lbx[N:N + nseek], ubx[N:N + nseek] = -self.wmax, self.wmax
+        args = (self._H, np.zeros(2 * N), self._A, lba, uba, lbx, ubx)
+        sol = self.solver.solve(*args, x0=x0)
+        if not sol.success and not sol.infeasible and self.fallback is not None:
+            if callable(self.fallback):
+                self.fallback = self.fallback()
+            sol = self.fallback.solve(*args)       # numerical trouble: second opinion before "infeasible"
+        if sol.success:                            # never trust a status alone
+            ax = self.A @ sol.x
+            scale = np.maximum(1.0, np.abs(self.A) @ np.abs(sol.x))
+            viol = max(np.max((lba - ax) / scale), np.max((ax - uba) / scale), np.max(lbx - sol.x),
+                       np.max(sol.x - ubx))
+            if viol > 1e-4:
+                sol.success = False
+        return sol
+
+    def unpack(self, x, nseek):
+        """``(u [A], w [track])`` over ``nseek`` samples; ``r = reference(u, w)``."""
+        return self.imax * x[:nseek], self.sigma * x[self.N:self.N + nseek]
+
+    def reference(self, u, w):
+        """``r`` [track] up to the first sample on the ramp asymptote (``len(u) + ceil(tau)``)."""
+        n = len(u)
+        r = self.ramp[:n + 1 + self.k_extra, :n] @ u
+        r[:n] += w
+        return r
+
+
+class LongSeekDesigner:
+    """Long seeks for one plant, controller and current limit (module notes); build once, design many.
+
+    Parameters
+    ----------
+    plant, controller, imax, settle, robust
+        As :class:`seekopt.design.ocp.SeekDesigner` (the same plant set is used for the velocity step).
+    spec : LongSeekSpec, optional
+        Velocity limit and stroke (default :meth:`LongSeekSpec.from_plant`).
+    band_margin, current_margin, hf_guard, hf_gain, hf_tol, solver
+        As :class:`seekopt.design.ocp.SeekDesigner`.
+    short_designer : object, optional
+        Designer for seeks without a coast (default a :class:`seekopt.design.ocp.SeekDesigner` with the
+        same settings, built on first use).
+    """
+
+    def __init__(self, plant: ModalPlant, controller, imax: float, settle: float = 0.1, robust=None,
+                 spec: LongSeekSpec | None = None, *, band_margin: float = 0.8, current_margin: float = 0.97,
+                 hf_guard=(0.45, 0.65), hf_gain: float = 1.0, hf_tol: float = 0.1, solver: str = "daqp",
+                 short_designer=None):
+        from seekopt.design.ocp import RobustSpec
+        if not (imax > 0 and settle > 0):
+            raise LongSeekError("imax and settle must be positive")
+        self.plant, self.controller, self.imax, self.settle = plant, controller, float(imax), float(settle)
+        self.robust = RobustSpec.from_string(robust) if isinstance(robust, str) else robust
+        self.spec = spec if spec is not None else LongSeekSpec.from_plant(plant, imax)
+        self.fs, self.L = float(controller.sample_rate_hz), int(controller.fast_multiple)
+        self.beta, self.gamma = float(band_margin), float(current_margin)
+        self.hf_guard, self.hf_gain, self.hf_tol, self.solver = hf_guard, float(hf_gain), float(hf_tol), solver
+        if abs(plant.bias_a) >= self.gamma * self.imax:
+            raise LongSeekError(f"bias {plant.bias_a:g} A leaves no current for a seek at Imax {imax:g} A")
+        self.plants = self.robust.plants(plant) if self.robust else [plant]
+        self.tail = max(int(round(self.spec.tail_s * self.fs)), 64)
+        self._short = short_designer
+        self._steps: dict = {}
+        self._maps, self._maps_h = None, 0
+
+    # ------------------------------------------------------------------ velocity steps
+    def _loop_maps(self, horizon):
+        from seekopt.design.qp import LoopMaps
+        if self._maps is None or self._maps_h < horizon:
+            h = max(horizon, 2 * self._maps_h)
+            self._maps = [LoopMaps(p, self.controller, h) for p in self.plants]
+            self._maps_h = h
+        return self._maps
+
+    def _qp(self, nmax, nlo):
+        from seekopt.design.qp import hf_guard_matrix
+        H = nmax + self.tail
+        maps = self._loop_maps(H)
+        hf = None
+        if self.hf_guard:
+            lo, hi = self.hf_guard
+            hf = hf_guard_matrix(self.plant.k0, self.fs, self.L, H * self.L, lo * self.fs, hi * self.fs,
+                                 self.hf_gain, spacing_hz=max(self.fs / (2 * nmax), 50.0))[0]
+        return _StepQP(maps, nmax, H, self.plant.k0, self.fs, self.plant.total_delay_s * self.fs, self.imax,
+                       self.settle, self.plant.bias_a, hf, nlo, self.solver, None)
+
+    def velocity_step(self, velocity_track_s: float) -> VelocityStep:
+        """The shortest verified velocity step to ``velocity_track_s`` [track/s] (cached)."""
+        d = float(velocity_track_s) / self.fs
+        key = round(d, 12)
+        if key in self._steps:
+            return self._steps[key]
+        t0 = time.process_time()
+        c = self.plant.k0 / self.fs ** 2
+        gam = self.gamma - abs(self.plant.bias_a) / self.imax
+        n_rigid = int(math.ceil(d / (c * gam * self.imax) - 1e-9))
+        lo = max(n_rigid - 1, 1)
+        hf_tol = 0.5 * self.hf_tol if self.hf_guard else None
+        nmax, best, qp, n_solves = max(16, int(math.ceil(1.3 * n_rigid + 12))), None, None, 0
+        while nmax <= 4096:
+            qp = self._qp(nmax, lo)
+            sol = qp.solve(d, nmax, self.beta, self.gamma, hf_tol); n_solves += 1
+            if sol.success:
+                best, hi = sol, nmax
+                break
+            lo, nmax = nmax, 2 * nmax
+        if best is None:
+            raise LongSeekError(f"no velocity step to {velocity_track_s:g} track/s within 4096 samples")
+        while hi - lo > 1:                         # feasibility is monotone in N: bisection
+            mid = (lo + hi) // 2
+            s = qp.solve(d, mid, self.beta, self.gamma, hf_tol, x0=best.x); n_solves += 1
+            if s.success:
+                hi, best = mid, s
+            else:
+                lo = mid
+        u, w = qp.unpack(best.x, hi)
+        u = np.clip(u, -self.imax, self.imax)
+        u += (d / c - u.sum()) / hi                  # exact velocity (least-norm correction, ~1e-12 A)
+        r = qp.reference(u, w)
+        step = VelocityStep(u, r, d, self.fs, self.imax, self.settle, 0, 0,
+                            {"plant_hash": self.plant.hash(), "controller_hash": self.controller.hash(),
+                             "robust": self.robust.to_string() if self.robust else "none",
+                             "design_samples": hi, "qp_solves": n_solves})
+        step.settle_samples, step.min_coast_samples = self._arrival(step)
+        step.meta["design_cpu_s"] = time.process_time() - t0
+        self._steps[key] = step
+        return step
+
+    def _arrival(self, step: VelocityStep) -> tuple[int, int]:
+        """Settle of the step's error and the smallest spacing from which compositions are clean
+        (nominal linear loop: error ``e_A(k) - e_A(k-m)`` in the band after ``m + settle``, current within
+        Imax with the hold, for every ``m`` up to the length where ``e_A`` and the currents have died out)."""
+        from seekopt.design.metrics import settle_index
+        H = step.n + 4 * self.tail
+        mp = self._loop_maps(H)[0]
+        u, r = step.extended(H)
+        e = np.convolve(mp.y_u[:H], u)[:H] + np.convolve(mp.y_r[:H], r)[:H] - r
+        i = (np.stack([np.convolve(mp.i_u[:H, l], u)[:H] + np.convolve(mp.i_r[:H, l], r)[:H]
+                       for l in range(self.L)], axis=1))
+        S = max(settle_index(e, self.settle) or 0, step.n)
+        if np.max(np.abs(e[-self.tail:])) > 0.01 * self.settle:
+            raise LongSeekError(f"velocity step to {step.velocity_track_s:g} track/s: the loop has not caught "
+                                f"the ramp {H} samples later")
+        hold = abs(self.plant.bias_a)
+        ez, iz = np.r_[e, np.zeros(H)], np.vstack([i, np.zeros_like(i)])   # e_A, i_A = 0 beyond the horizon
+        m_ok = H
+        for m in range(H - 1, step.n - 1, -1):     # arrival error e_A(m + j) - e_A(j), scanned down in m
+            k = settle_index(ez[m:m + H] - e, self.settle)
+            im = np.vstack([i[:m], iz[m:m + H] - i])
+            if k is None or k > S or np.max(np.abs(im)) + hold > self.imax * (1 + 1e-9):   # both directions
+                break
+            m_ok = m
+        return int(S), int(m_ok)
+
+    # ------------------------------------------------------------------ seeks
+    def coast_velocity(self) -> float | None:
+        return self.spec.vmax_track_s
+
+    def needs_coast(self, tracks: float) -> bool:
+        """True when a velocity limit is set and the seek is long enough to coast at it."""
+        v = self.spec.vmax_track_s
+        if v is None:
+            return False
+        a = self.plant.k0 * self.imax
+        if abs(tracks) < 0.9 * v * v / a:          # cheap: far below the bang-bang peak velocity
+            return False
+        return abs(tracks) >= self.velocity_step(v).min_tracks
+
+    def step_for(self, tracks: float) -> VelocityStep:
+        """The fastest velocity step (at most ``vmax``, 3 % apart) with which ``tracks`` coasts."""
+        K, v = abs(float(tracks)), self.spec.vmax_track_s
+        if v is None:
+            v = math.sqrt(K * self.plant.k0 * self.imax)
+        st = self.velocity_step(v)
+        if K >= st.min_tracks:
+            return st
+        v *= min(0.97, math.sqrt(K / st.min_tracks))    # min_tracks grows about as v^2
+        for _ in range(200):
+            st = self.velocity_step(v)
+            if K >= st.min_tracks:
+                return st
+            v *= 0.97
+        raise LongSeekError(f"no velocity step lets {K:g} tracks coast")
+
+    def short_designer(self):
+        if self._short is None:
+            from seekopt.design.ocp import SeekDesigner
+            self._short = SeekDesigner(self.plant, self.controller, self.imax, self.settle, self.robust,
+                                       band_margin=self.beta, current_margin=self.gamma, hf_guard=self.hf_guard,
+                                       hf_gain=self.hf_gain, hf_tol=self.hf_tol, solver=self.solver)
+        return self._short
+
+    def design(self, tracks: float):
+        """Design the seek of ``tracks`` tracks -> :class:`seekopt.design.ocp.DesignResult`.
+
+        With a coast: the composition of the velocity step at ``vmax`` (module notes), verified by
+        simulation; without: the rest-to-rest designer, its rigid peak velocity checked against ``vmax``.
+        """
+        from seekopt.design.metrics import evaluate_profile
+        from seekopt.design.ocp import DesignError, DesignResult
+        from seekopt.design.profiles import Profile
+        K = float(tracks)
+        if not math.isfinite(K) or K == 0:
+            raise LongSeekError(f"tracks must be a non-zero number, not {tracks!r}")
+        if self.spec.stroke_track is not None and abs(K) > self.spec.stroke_track:
+            raise LongSeekError(f"seek of {K:g} tracks is longer than the stroke ({self.spec.stroke_track:g} tracks)")
+        t0 = time.process_time()
+        vmax = self.spec.vmax_track_s
+        if not self.needs_coast(K):
+            res = self.short_designer().design(K)
+            if vmax is None:
+                return res
+            vpk = rigid_peak_velocity(res.profile.current_a, self.plant.k0, self.fs)
+            res.profile.meta["peak_rigid_velocity_track_s"] = vpk
+            if vpk <= vmax * (1 + 1e-9):
+                return res
+            step = self.step_for(K)       # too fast and too short to coast at vmax: coast slower
+        else:
+            step = self.velocity_step(vmax)
+        u, r, m, s = step.compose(K)
+        meta = {"plant_hash": self.plant.hash(), "controller_hash": self.controller.hash(),
+                "design_objective": "long_seek/accelerate-coast-arrive", "coast_samples": m,
+                "coast_velocity_track_s": s * step.velocity_track_s, "vmax_track_s": vmax,
+                "step_samples": step.n, "robust": step.meta["robust"], "design_settle_samples": m + step.settle_samples}
+        prof = Profile(np.r_[u, 0.0], np.r_[r, K], self.fs, K, self.imax, self.settle, "long_seek",
+                       int(np.max(np.nonzero(u)[0]) + 1), meta)
+        metrics = evaluate_profile(self.plant, self.controller, prof, settle=self.settle)
+        if not metrics.peak_current_a <= self.imax * (1 + 1e-9):
+            raise DesignError(f"long seek of {K:g} tracks exceeds Imax in simulation ({metrics.peak_current_a:.4g} A)")
+        if not metrics.settle_time_s * self.fs <= m + step.settle_samples + 1 + 1e-9:
+            raise DesignError(f"long seek of {K:g} tracks does not settle by sample {m + step.settle_samples}")
+        prof.meta["design_status"] = "verified"
+        return DesignResult(prof, metrics, "verified", time.process_time() - t0, self.solver,
+                            "long_seek", settle_samples=m + step.settle_samples,
+                            n_solves=int(step.meta["qp_solves"]))
+
+
+def rigid_peak_velocity(current_a, k0: float, fs: float) -> float:
+    """Largest ``|rigid velocity|`` [track/s] of a feedforward (ZOH double integrator)."""
+    return float(np.max(np.abs(np.cumsum(current_a)))) * k0 / fs
