@@ -144,18 +144,34 @@ def cmd_design(args) -> int:
         robust = None if str(args.robust).lower() == "none" else RobustSpec.from_string(args.robust)
     except ValueError as exc:
         raise UsageError(f"--robust: {exc}") from None
+    from seekopt.design.longseek import LongSeekDesigner, LongSeekError, LongSeekSpec
+    for name, v in (("--vmax", args.vmax), ("--stroke", args.stroke)):
+        if v is not None and not (math.isfinite(v) and v > 0):
+            raise UsageError(f"{name} must be a positive number (got {v})")
     try:
-        res = SeekDesigner(plant, controller, args.imax, args.settle, robust).design(args.tracks)
-    except DesignError as exc:
+        spec = LongSeekSpec.from_plant(plant, args.imax, args.vmax, args.stroke)
+    except LongSeekError as exc:
+        raise UsageError(f"{args.plant}: {exc}") from None
+    if spec.stroke_track is not None and abs(args.tracks) > spec.stroke_track:
+        raise UsageError(f"--tracks {args.tracks:g} is longer than the stroke ({spec.stroke_track:g} tracks)")
+    try:
+        designer = SeekDesigner(plant, controller, args.imax, args.settle, robust)
+        if spec.vmax_track_s is not None:   # long seeks coast at vmax (seekopt.design.longseek)
+            designer = LongSeekDesigner(plant, controller, args.imax, args.settle, robust, spec,
+                                        short_designer=designer)
+        res = designer.design(args.tracks)
+    except (DesignError, LongSeekError) as exc:
         print(f"seekopt design: solver failure: {str(exc).splitlines()[0]}", file=sys.stderr)
         return 1
     prof = res.profile
     prof.meta.update(plant_file=Path(args.plant).name, controller_name=controller.name)
     prof.to_csv(args.output)
     m = res.metrics
+    coast = (f"; coasts {prof.meta['coast_samples']} samples at {prof.meta['coast_velocity_track_s']:.4g} track/s"
+             if prof.kind == "long_seek" else "")
     print(f"wrote {args.output}: {prof.n} samples; {args.tracks:g} tracks, seek {m.seek_time_s * 1e3:.3f} ms, "
           f"seek-settle {m.settle_time_s * 1e3:.3f} ms ({m.ratio_tbb:.2f} T_bb) on the design plant, "
-          f"peak current {m.peak_current_a:.3f} A; {res.n_solves} QPs ({res.solver}) in {res.solve_time_s:.3f} s")
+          f"peak current {m.peak_current_a:.3f} A{coast}; {res.n_solves} QPs ({res.solver}) in {res.solve_time_s:.3f} s")
     return 0
 
 
@@ -218,11 +234,37 @@ def cmd_sweep(args) -> int:
 
 
 def cmd_export(args) -> int:
+    """``seekopt export RESULTS|PROFILE.csv``: a sweep's designs (``seekopt_tables.*``) and, with the stroke known,
+    tables for every length 1..stroke (``seekopt_seek.*``, :mod:`seekopt.export.playable`); or one design."""
+    from seekopt.export import playable
     from seekopt.export.tables import load_tables, write_tables
-    ts = load_tables(args.results)
+    src = Path(args.results)
+    if src.is_file():
+        ts = playable.table_set_from_profile(src)
+        paths = write_tables(ts, args.format, args.output)
+        t = ts.tables[0]
+        print(f"export: one design ({t.tracks} tracks, {t.ff_len} feedforward samples, {ts.meta['ref_format']} "
+              "reference) -> " + ", ".join(map(str, paths)))
+        return 0
+    ts = load_tables(src)
+    if not (args.budget_kib > 0 and args.budget_kib < float("inf")):
+        raise UsageError(f"--budget-kib must be a positive number (got {args.budget_kib})")
+    stroke_mm = playable.sweep_stroke_mm(src, args.stroke_mm, args.vmax_mps)    # checks before any output
     paths = write_tables(ts, args.format, args.output)
     print(f"export: {len(ts.tables)} tables ({len(ts.tpis)} TPI x {len(ts.lengths)} lengths, "
           f"{ts.meta['ref_format']} reference) -> " + ", ".join(map(str, paths)))
+    if stroke_mm is None:
+        print("export: no stroke given (--stroke-mm or the plant's meta stroke_mm): only the swept lengths were "
+              "exported; pass --stroke-mm for tables of every length")
+        return 0
+    rule = playable.build_rule(src, stroke_mm=args.stroke_mm, vmax_mps=args.vmax_mps, budget_kib=args.budget_kib)
+    paths = playable.write_seek(rule, args.format, args.output)
+    for s in rule.sets:
+        print(f"export: {s.tpi} TPI: lengths 1..{s.stroke} in {len(s.classes)} rest-to-rest classes "
+              f"(1..{s.classes[-1].k_hi}) + {len(s.coasts)} coast classes, {s.table_bytes()} bytes of "
+              f"{int(args.budget_kib * 1024)}, peak current {s.meta['peak_current_a']:.4g} A, "
+              f"coast at {s.meta['coast_velocity_track_s']:.4g} track/s")
+    print("export: playable tables -> " + ", ".join(map(str, paths)))
     return 0
 
 
@@ -273,6 +315,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="robust design set (default: RobustSpec() -- seek-induced modes +-5 %%, others +-1 %%, "
                         "zeta +-30 %%, gain +-8 %%, delay +-1 us); e.g. freq=5,ofreq=1,zeta=30,gain=8,delay=1e-6,n=15 "
                         "(percent / s); 'none' for a nominal design")
+    s.add_argument("--vmax", type=float, help="velocity limit [track/s] (default: the plant's meta vmax_mps or "
+                   "back_emf_v_per_mps + supply_v); seeks long enough accelerate, coast at it and arrive")
+    s.add_argument("--stroke", type=float, help="full stroke [track] (default: the plant's meta stroke_mm / "
+                   "stroke_track); longer seeks are refused")
     s.add_argument("-o", "--output", required=True, help="profile CSV")
     s.set_defaults(func=cmd_design)
 
@@ -308,8 +354,13 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=cmd_sweep)
 
     s = sub.add_parser("export", help="export feedforward tables for firmware")
-    s.add_argument("results")
+    s.add_argument("results", help="sweep results folder, or a profile CSV of `seekopt design` (one design)")
     s.add_argument("--format", choices=["c", "csv", "json"], default="c")
+    s.add_argument("--stroke-mm", type=float, help="full stroke [mm] (default: the plant's meta stroke_mm): "
+                   "also write tables for every length 1..stroke (seekopt_seek.*)")
+    s.add_argument("--vmax-mps", type=float, help="velocity limit [m/s] (default: the plant's meta vmax_mps or "
+                   "back_emf_v_per_mps + supply_v)")
+    s.add_argument("--budget-kib", type=float, default=64.0, help="table memory per TPI [KiB] (default 64)")
     s.add_argument("-o", "--output", required=True)
     s.set_defaults(func=cmd_export)
 

@@ -464,7 +464,7 @@ class LongSeekDesigner:
         hold = abs(self.plant.bias_a)
         ez, iz = np.r_[e, np.zeros(H)], np.vstack([i, np.zeros_like(i)])   # e_A, i_A = 0 beyond the horizon
         m_ok = H
-        for m in range(H - 1, step.n - 1, -1):     # arrival error e_A(m + j) - e_A(j), scanned down in m
+        for m in range(H - 1, 0, -1):     # arrival error e_A(m + j) - e_A(j), scanned down in m (m < N: overlap)
             k = settle_index(ez[m:m + H] - e, self.settle)
             im = np.vstack([i[:m], iz[m:m + H] - i])
             if k is None or k > S or np.max(np.abs(im)) + hold > self.imax * (1 + 1e-9):   # both directions
