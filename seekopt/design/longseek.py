@@ -449,7 +449,8 @@ class LongSeekDesigner:
     def _arrival(self, step: VelocityStep) -> tuple[int, int]:
         """Settle of the step's error and the smallest spacing from which compositions are clean
         (nominal linear loop: error ``e_A(k) - e_A(k-m)`` in the band after ``m + settle``, current within
-        Imax with the hold, for every ``m`` up to the length where ``e_A`` and the currents have died out)."""
+        ``(1 + gamma) / 2 Imax`` with the hold in both directions, for every ``m`` up to the length where ``e_A`` and the
+        currents have died out; ``m < N`` overlaps the steps)."""
         from seekopt.design.metrics import settle_index
         H = step.n + 4 * self.tail
         mp = self._loop_maps(H)[0]
@@ -463,11 +464,14 @@ class LongSeekDesigner:
                                 f"the ramp {H} samples later")
         hold = abs(self.plant.bias_a)
         ez, iz = np.r_[e, np.zeros(H)], np.vstack([i, np.zeros_like(i)])   # e_A, i_A = 0 beyond the horizon
+        if np.max(np.abs(i)) + hold > self.imax:
+            raise LongSeekError(f"velocity step to {step.velocity_track_s:g} track/s exceeds Imax on the design plant")
+        lim = 0.5 * (1 + self.gamma) * self.imax - hold    # compositions may use half the QP's current margin
         m_ok = H
         for m in range(H - 1, 0, -1):     # arrival error e_A(m + j) - e_A(j), scanned down in m (m < N: overlap)
             k = settle_index(ez[m:m + H] - e, self.settle)
             im = np.vstack([i[:m], iz[m:m + H] - i])
-            if k is None or k > S or np.max(np.abs(im)) + hold > self.imax * (1 + 1e-9):   # both directions
+            if k is None or k > S or np.max(np.abs(im)) > lim:
                 break
             m_ok = m
         return int(S), int(m_ok)

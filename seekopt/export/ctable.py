@@ -5,7 +5,7 @@ Writes ``<basename>.h`` and ``<basename>.c`` (default ``seekopt_seek``); the C c
 ``-std=c99 -Wall -Wextra -Werror -pedantic`` and needs only ``<stdint.h>``.  API::
 
     const seekopt_seek_set_t *seekopt_seek_find(uint32_t tpi, uint16_t member);
-    int32_t seekopt_seek_samples(const seekopt_seek_set_t *set, int32_t tracks);   /* -2: no such seek */
+    int32_t seekopt_seek_samples(const seekopt_seek_set_t *set, int32_t tracks);   /* -1 no set, -2 no seek */
     int seekopt_seek_sample_set(const seekopt_seek_set_t *set, int32_t tracks, uint32_t k,
                                 int16_t *u_ff, int32_t *r);
     int seekopt_seek_sample(uint32_t tpi, int32_t tracks, uint32_t k, int16_t *u_ff, int32_t *r);
@@ -130,6 +130,7 @@ int32_t seekopt_seek_samples(const seekopt_seek_set_t *s, int32_t tracks)
     uint16_t idx = 0;
     int64_t m = 0;
     int kind;
+    if (!s) return -1;
     if (tracks == 0) return 0;
     kind = pick(s, k, &idx, &m);
     if (kind == 1) {
@@ -151,6 +152,7 @@ int seekopt_seek_sample_set(const seekopt_seek_set_t *s, int32_t tracks, uint32_
     int kind;
     *u_ff = 0;
     *r = 0;
+    if (!s) return -1;
     if (tracks == 0) return 0;
     kind = pick(s, kk, &idx, &m);
     if (kind == 0) return -2;
@@ -183,13 +185,7 @@ int seekopt_seek_sample_set(const seekopt_seek_set_t *s, int32_t tracks, uint32_
 
 int seekopt_seek_sample(uint32_t tpi, int32_t tracks, uint32_t k, int16_t *u_ff, int32_t *r)
 {
-    const seekopt_seek_set_t *s = seekopt_seek_find(tpi, 0);
-    if (!s) {
-        *u_ff = 0;
-        *r = 0;
-        return -1;
-    }
-    return seekopt_seek_sample_set(s, tracks, k, u_ff, r);
+    return seekopt_seek_sample_set(seekopt_seek_find(tpi, 0), tracks, k, u_ff, r);
 }
 """
 
