@@ -275,7 +275,9 @@ def test_full_stroke_tables_1_to_3000_and_above(drive, tmp_path):
     ls = LongSeekDesigner(p, c, IMAX, 0.1, None, LongSeekSpec(vmax_track_s=vmax, stroke_track=stroke))
     ad = AnchorDesigner(SeekDesigner(p, c, IMAX, 0.1, current_margin=0.97 - 2 * abs(p.bias_a) / IMAX), p, c, 0.1)
     s = build_seek_set(ad, ls, stroke, frac_bits_for(stroke), IMAX, tpi=100000)
-    Ks = np.r_[np.arange(1, 3001), np.unique(np.round(np.logspace(np.log10(3001), 5, 60)).astype(int))]
+    above = np.unique(np.r_[np.round(np.logspace(np.log10(3001), 5, 60)), s.classes[-1].k_hi + 1, 3500, 5000,
+                            10000, 30000]).astype(int)
+    Ks = np.r_[np.arange(1, 3001), above[above > 3000]]
     res = play_linear(s, p, c, Ks, IMAX)
     peak = np.maximum(res["peak_current_a"], res["peak_current_neg_a"])
     assert np.all(res["settle_samples"] >= 0) and peak.max() <= IMAX

@@ -382,12 +382,13 @@ class LongSeekDesigner:
         self._short = short_designer
         self._steps: dict = {}
         self._maps, self._maps_h = None, 0
+        self._nominal = None
 
     # ------------------------------------------------------------------ velocity steps
     def _loop_maps(self, horizon):
         from seekopt.design.qp import LoopMaps
         if self._maps is None or self._maps_h < horizon:
-            h = max(horizon, 2 * self._maps_h)
+            h = max(horizon, int(1.5 * self._maps_h))
             self._maps = [LoopMaps(p, self.controller, h) for p in self.plants]
             self._maps_h = h
         return self._maps
@@ -417,13 +418,14 @@ class LongSeekDesigner:
         lo = max(n_rigid - 1, 1)
         hf_tol = 0.5 * self.hf_tol if self.hf_guard else None
         nmax, best, qp, n_solves = max(16, int(math.ceil(1.3 * n_rigid + 12))), None, None, 0
+        self._loop_maps(int(1.5 * nmax) + self.tail)     # once for the first two size classes
         while nmax <= 4096:
             qp = self._qp(nmax, lo)
             sol = qp.solve(d, nmax, self.beta, self.gamma, hf_tol); n_solves += 1
             if sol.success:
                 best, hi = sol, nmax
                 break
-            lo, nmax = nmax, 2 * nmax
+            lo, nmax = nmax, int(math.ceil(1.5 * nmax))
         if best is None:
             raise LongSeekError(f"no velocity step to {velocity_track_s:g} track/s within 4096 samples")
         while hi - lo > 1:                         # feasibility is monotone in N: bisection
@@ -452,8 +454,11 @@ class LongSeekDesigner:
         ``(1 + gamma) / 2 Imax`` with the hold in both directions, for every ``m`` up to the length where ``e_A`` and the
         currents have died out; ``m < N`` overlaps the steps)."""
         from seekopt.design.metrics import settle_index
+        from seekopt.design.qp import LoopMaps
         H = step.n + 4 * self.tail
-        mp = self._loop_maps(H)[0]
+        if self._nominal is None or self._nominal.horizon < H:
+            self._nominal = LoopMaps(self.plant, self.controller, 2 * H)
+        mp = self._nominal
         u, r = step.extended(H)
         e = np.convolve(mp.y_u[:H], u)[:H] + np.convolve(mp.y_r[:H], r)[:H] - r
         i = (np.stack([np.convolve(mp.i_u[:H, l], u)[:H] + np.convolve(mp.i_r[:H, l], r)[:H]
