@@ -14,7 +14,7 @@ from hypothesis import given, settings, strategies as st
 
 from seekopt.app.cli import main
 from seekopt.design.longseek import LongSeekDesigner, LongSeekSpec
-from seekopt.design.ocp import SeekDesigner
+from seekopt.design.designer import SeekDesigner
 from seekopt.drive.controller import Controller
 from seekopt.drive.presets import default_truth_plant
 from seekopt.evaluate.sweep import SweepConfig, run_sweep

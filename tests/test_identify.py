@@ -239,6 +239,7 @@ def test_cli_identify(default_log, default_ids, tmp_path, monkeypatch, capsys):
     assert cli.main(["identify", str(path), "--method", "paper", "--figures", str(figs)]) == 0
     assert sorted(p.name for p in figs.glob("*.png")) == ["fig3_modes.png", "fig4_spectra.png", "fig5_tf.png",
                                                           "fig6_settle_pes.png", "fig6_settle_pes_window_init.png"]
+    capsys.readouterr()                 # (the figures' stage log, if they took over 2 s)
     bad = tmp_path / "bad.csv"
     bad.write_text("# sample_rate_hz: 26400\ntime_s,current_a,position_track\n0,0,0\n")
     assert cli.main(["identify", str(bad)]) == 2

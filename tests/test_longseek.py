@@ -11,7 +11,7 @@ from seekopt.app.cli import main
 from seekopt.design.longseek import (LongSeekDesigner, LongSeekError, LongSeekSpec, VelocityStep,
                                      rigid_peak_velocity, stroke_from_plant, t_accel_coast_decel, vmax_from_plant)
 from seekopt.design.metrics import evaluate_profile, settle_index
-from seekopt.design.ocp import SeekDesigner
+from seekopt.design.designer import SeekDesigner
 from seekopt.design.profiles import rigid_endpoint_matrix, t_bang_bang
 from seekopt.drive.controller import Controller
 from seekopt.drive.presets import default_truth_plant

@@ -214,7 +214,8 @@ def modal_gains(y, regressors, windows) -> GainFit:
     scale[scale == 0] = 1.0
     Ys = Ymat / np.outer(scale, scale)
     coef = np.linalg.lstsq(Ys, rhs / scale, rcond=None)[0] / scale
-    rss = max(yy - 2 * coef @ rhs + coef @ Ymat @ coef, 0.0)
+    # from the residuals themselves: yy - 2 c.rhs + c'Yc cancels catastrophically on exact data
+    rss = float(sum(np.sum((y[i0:i1] - X[i0:i1] @ coef) ** 2) for i0, i1 in windows))
     dof = max(n - R, 1)
     cov = np.linalg.pinv(Ys) / np.outer(scale, scale) * rss / dof
     return GainFit(coef, np.sqrt(np.abs(np.diag(cov))), Ymat, rhs, float(np.sqrt(rss / n)), n)

@@ -242,6 +242,7 @@ class SeekLog:
             raise LogError(name, "no seek in log: target_track never changes")
         log = cls(**cols, sample_rate_hz=rate, track_pitch_nm=pitch, metadata=meta, extra=extras, source=source)
         log.input_current()          # validates the optional sub-step current columns
+        _check_current_columns(log)  # ... and that current_a is their mean
         return log
 
 
@@ -386,7 +387,18 @@ def _read_mat(name: str, raw: bytes):
     return _split_entries(name, {k: v for k, v in d.items() if not k.startswith("__")})
 
 
-_READERS = {".csv": _read_csv, ".npz": _read_npz, ".mat": _read_mat}
+def _check_current_columns(log) -> None:
+    from identification.logs.checks import check_current_columns
+    check_current_columns(log)
+
+
+def _read_mat_any(name: str, raw: bytes):
+    """MAT v5/v7 (scipy) or v7.3 (HDF5, via h5py: :mod:`identification.logs.mat73`)."""
+    from identification.logs.mat73 import is_mat73, read_mat73
+    return read_mat73(name, raw) if is_mat73(raw) else _read_mat(name, raw)
+
+
+_READERS = {".csv": _read_csv, ".npz": _read_npz, ".mat": _read_mat_any}
 
 
 def _ext(name: str, table: Mapping[str, Any]):

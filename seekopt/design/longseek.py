@@ -15,8 +15,8 @@ A *velocity step* of ``d`` tracks per sample is a feedforward ``u_A`` over ``N``
 (the head moving at ``d`` track/sample with zero current, the modes at rest, zero error: the loop with a
 double-integrator plant and an integrating controller is type 3, so it tracks the ramp with zero error).
 It is designed by a QP on the condensed linear loop (:class:`seekopt.design.qp.LoopMaps`, from the one
-simulator) over the same plant set, current limit and unmodelled-mode guard as
-:class:`seekopt.design.ocp.SeekDesigner`: minimum ``N`` such that ``|y_i(k) - r_A(k)| <= beta band`` for
+simulator) over the same plant set, current limit, unmodelled-mode guard and solver chain as
+:class:`seekopt.design.designer.SeekDesigner` (one :class:`seekopt.design.problem.SeekProblem`): minimum ``N`` such that ``|y_i(k) - r_A(k)| <= beta band`` for
 ``k >= N`` on every plant ``i`` of the set, the total current within ``gamma Imax - |bias|`` (so that the
 mirrored step, ``-u_A``, with the hold current is within ``gamma Imax`` too), the rigid velocity never above
 ``d``, and the guard's residual within half its tolerance (the two steps of a seek add).
@@ -34,7 +34,7 @@ acceleration; after both steps the reference is exactly ``s m d = K`` and the he
 the arrival settles like the step settles onto its ramp.  The design cost is one small QP per velocity,
 whatever the coast; every seek is checked on the full design plant by
 :func:`seekopt.drive.simulator.simulate_2dof` (via :func:`seekopt.design.metrics.evaluate_profile`).
-Shorter seeks (no room for a coast) go to :class:`seekopt.design.ocp.SeekDesigner`; its peak rigid
+Shorter seeks (no room for a coast) go to :class:`seekopt.design.designer.SeekDesigner`; its peak rigid
 velocity is checked against the limit.
 
 Velocity limit from the plant (``ModalPlant.meta`` keys, SI units)
@@ -124,32 +124,28 @@ class LongSeekSpec:
         Velocity limit [track/s] (None: none; :meth:`from_plant` reads the plant's metadata).
     stroke_track : float, optional
         Full stroke [track]: longer seeks are refused.
-    tail_s : float
-        Time after the velocity step over which its QP enforces the settle band [s].
     """
 
     vmax_track_s: float | None = None
     stroke_track: float | None = None
-    tail_s: float = 0.008
 
     def __post_init__(self):
         self.vmax_track_s = _pos(self.vmax_track_s, "vmax")
         self.stroke_track = _pos(self.stroke_track, "stroke")
-        _pos(self.tail_s, "tail_s")
 
     @classmethod
-    def from_plant(cls, plant: ModalPlant, imax: float, vmax_track_s=None, stroke_track=None, **kw):
+    def from_plant(cls, plant: ModalPlant, imax: float, vmax_track_s=None, stroke_track=None):
         """Explicit values win over the plant's metadata (module notes)."""
         v = vmax_track_s if vmax_track_s is not None else vmax_from_plant(plant, imax)
         s = stroke_track if stroke_track is not None else stroke_from_plant(plant)
-        return cls(v, s, **kw)
+        return cls(v, s)
 
     def to_dict(self) -> dict:
-        return {"vmax_track_s": self.vmax_track_s, "stroke_track": self.stroke_track, "tail_s": self.tail_s}
+        return {"vmax_track_s": self.vmax_track_s, "stroke_track": self.stroke_track}
 
     @classmethod
     def from_dict(cls, d: dict) -> "LongSeekSpec":
-        return cls(d.get("vmax_track_s"), d.get("stroke_track"), d.get("tail_s", 0.008))
+        return cls(d.get("vmax_track_s"), d.get("stroke_track"))
 
 
 @dataclass
@@ -242,8 +238,9 @@ class _StepQP:
     """
 
     def __init__(self, maps, nmax, horizon, k0, fs, delay_samples, imax, band, bias, hf, nlo,
-                 solver, solver_options, rho=1e-2, rho_w=1e-3, quiet=0.2, quiet_after=32):
-        from seekopt.design.qp import dm, make_qp_solver, pes_row_samples, toeplitz_rows
+                 settings, rho=1e-2, rho_w=1e-3, quiet=0.2, quiet_after=32):
+        from seekopt.design.qp import pes_row_samples, toeplitz_rows
+        from seekopt.design.solvers import SolverChain, dm
         t0 = time.perf_counter()
         N, H, L = int(nmax), int(horizon), maps[0].L
         self.N, self.H, self.imax, self.band, self.bias = N, H, float(imax), float(band), abs(float(bias))
@@ -257,10 +254,12 @@ class _StepQP:
         self.sigma = 1.0                                   # scale of the reference correction w [track]
         self.wmax = self.c * imax * N * N                  # |w| bound: loose (the objective keeps w small)
         E = np.eye(H, N)
-        ks = pes_row_samples(N, H)
-        ks = ks[ks >= nlo]
+        ks_set = pes_row_samples(N, H)
+        ks_set = ks_set[ks_set >= nlo]
         blocks, kinds = [], []
         for i, mp in enumerate(maps):               # settle band: e_i(k) = y_i(k) - r(k), k >= N
+            # the nominal plant's quiet tail bounds what one step adds to the other's arrival: every sample
+            ks = np.arange(nlo, H) if i == 0 else ks_set
             Tyu = toeplitz_rows(mp.y_u, ks, N)
             Tyr = toeplitz_rows(mp.y_r, ks, H)
             a = np.hstack([imax * (Tyu + Tyr @ self.ramp - self.ramp[ks]), self.sigma * (Tyr @ E - E[ks])]) / band
@@ -292,8 +291,8 @@ class _StepQP:
         P += 2e-9 * np.eye(2 * N)
         self._H, self._A = dm(P), dm(A)
         self.m = A.shape[0]
-        self.solver = make_qp_solver(2 * N, self.m, solver, solver_options)
-        self.fallback = None if solver == "highs" else (lambda: make_qp_solver(2 * N, self.m, "highs", None))
+        self.solver = SolverChain(2 * N, self.m, settings.chain, settings.options)
+        self.violation_tol = float(settings.violation_tol)
         self.build_time_s = time.perf_counter() - t0
 
     def solve(self, d: float, nseek: int, beta: float, gamma: float, hf_tol: float | None, x0=None):
@@ -319,20 +318,15 @@ class _StepQP:
         lbx, ubx = np.zeros(2 * N), np.zeros(2 * N)
         lbx[:nseek], ubx[:nseek] = -1.0, 1.0
         lbx[N:N + nseek], ubx[N:N + nseek] = -self.wmax, self.wmax
-        args = (self._H, np.zeros(2 * N), self._A, lba, uba, lbx, ubx)
-        sol = self.solver.solve(*args, x0=x0)
-        if not sol.success and not sol.infeasible and self.fallback is not None:
-            if callable(self.fallback):
-                self.fallback = self.fallback()
-            sol = self.fallback.solve(*args)       # numerical trouble: second opinion before "infeasible"
-        if sol.success:                            # never trust a status alone
-            ax = self.A @ sol.x
-            scale = np.maximum(1.0, np.abs(self.A) @ np.abs(sol.x))
-            viol = max(np.max((lba - ax) / scale), np.max((ax - uba) / scale), np.max(lbx - sol.x),
-                       np.max(sol.x - ubx))
-            if viol > 1e-4:
-                sol.success = False
-        return sol
+        def check(x):                              # never trust a status alone
+            if not np.all(np.isfinite(x)):
+                return "non-finite answer"
+            ax = self.A @ x
+            scale = np.maximum(1.0, np.abs(self.A) @ np.abs(x))
+            viol = max(np.max((lba - ax) / scale), np.max((ax - uba) / scale), np.max(lbx - x), np.max(x - ubx))
+            return f"constraint violation {viol:.2g}" if viol > self.violation_tol else ""
+        # numerical trouble moves on to the fallback solvers before anything is called infeasible
+        return self.solver.solve(self._H, np.zeros(2 * N), self._A, lba, uba, lbx, ubx, x0=x0, check=check)
 
     def unpack(self, x, nseek):
         """``(u [A], w [track])`` over ``nseek`` samples; ``r = reference(u, w)``."""
@@ -347,38 +341,46 @@ class _StepQP:
 
 
 class LongSeekDesigner:
-    """Long seeks for one plant, controller and current limit (module notes); build once, design many.
+    """Long seeks for one :class:`seekopt.design.problem.SeekProblem` (module notes); build once, design many.
+
+    ``LongSeekDesigner(problem, spec)``, or the keyword form ``LongSeekDesigner(plant, controller, imax,
+    settle, robust, spec, **options)`` (:meth:`SeekProblem.from_options`).  The velocity step uses the
+    problem's plant set, margins, unmodelled-mode guard, tail and solver chain.
 
     Parameters
     ----------
-    plant, controller, imax, settle, robust
-        As :class:`seekopt.design.ocp.SeekDesigner` (the same plant set is used for the velocity step).
+    problem : SeekProblem
     spec : LongSeekSpec, optional
         Velocity limit and stroke (default :meth:`LongSeekSpec.from_plant`).
-    band_margin, current_margin, hf_guard, hf_gain, hf_tol, solver
-        As :class:`seekopt.design.ocp.SeekDesigner`.
     short_designer : object, optional
-        Designer for seeks without a coast (default a :class:`seekopt.design.ocp.SeekDesigner` with the
-        same settings, built on first use).
+        Designer for seeks without a coast (default ``SeekDesigner(problem)``, built on first use).
     """
 
-    def __init__(self, plant: ModalPlant, controller, imax: float, settle: float = 0.1, robust=None,
-                 spec: LongSeekSpec | None = None, *, band_margin: float = 0.8, current_margin: float = 0.97,
-                 hf_guard=(0.45, 0.65), hf_gain: float = 1.0, hf_tol: float = 0.1, solver: str = "daqp",
-                 short_designer=None):
-        from seekopt.design.ocp import RobustSpec
-        if not (imax > 0 and settle > 0):
-            raise LongSeekError("imax and settle must be positive")
-        self.plant, self.controller, self.imax, self.settle = plant, controller, float(imax), float(settle)
-        self.robust = RobustSpec.from_string(robust) if isinstance(robust, str) else robust
-        self.spec = spec if spec is not None else LongSeekSpec.from_plant(plant, imax)
-        self.fs, self.L = float(controller.sample_rate_hz), int(controller.fast_multiple)
-        self.beta, self.gamma = float(band_margin), float(current_margin)
-        self.hf_guard, self.hf_gain, self.hf_tol, self.solver = hf_guard, float(hf_gain), float(hf_tol), solver
-        if abs(plant.bias_a) >= self.gamma * self.imax:
-            raise LongSeekError(f"bias {plant.bias_a:g} A leaves no current for a seek at Imax {imax:g} A")
-        self.plants = self.robust.plants(plant) if self.robust else [plant]
-        self.tail = max(int(round(self.spec.tail_s * self.fs)), 64)
+    def __init__(self, problem, *args, spec: LongSeekSpec | None = None, short_designer=None, **options):
+        from seekopt.design.problem import SeekProblem
+        if not isinstance(problem, SeekProblem):
+            pos = (problem,) + args
+            if len(pos) < 3:
+                raise TypeError("LongSeekDesigner(problem, spec) or (plant, controller, imax[, settle, robust, spec])")
+            if len(pos) > 5:
+                spec = pos[5]
+            problem = SeekProblem.from_options(*pos[:5], **options)
+        elif len(args) == 1 and spec is None:
+            spec = args[0]
+        elif args or options:
+            raise TypeError("LongSeekDesigner(problem, spec) takes no further arguments")
+        self.problem = p = problem
+        self.plant, self.controller = p.plant, p.controller
+        self.imax, self.settle, self.robust = p.imax_a, p.settle_band_track, p.robust
+        self.spec = spec if spec is not None else LongSeekSpec.from_plant(p.plant, p.imax_a)
+        self.fs, self.L = p.sample_rate_hz, int(p.controller.fast_multiple)
+        self.beta, self.gamma = p.band_margin, p.current_margin
+        self.hf_guard, self.hf_gain, self.hf_tol = p.hf_guard, p.hf_gain, p.hf_tol
+        self.solver = p.solver.qp_solver
+        if abs(p.plant.bias_a) >= self.gamma * self.imax:
+            raise LongSeekError(f"bias {p.plant.bias_a:g} A leaves no current for a seek at Imax {self.imax:g} A")
+        self.plants = p.plants()
+        self.tail = max(int(round(p.tail_s * self.fs)), 64)
         self._short = short_designer
         self._steps: dict = {}
         self._maps, self._maps_h = None, 0
@@ -403,7 +405,7 @@ class LongSeekDesigner:
             hf = hf_guard_matrix(self.plant.k0, self.fs, self.L, H * self.L, lo * self.fs, hi * self.fs,
                                  self.hf_gain, spacing_hz=max(self.fs / (2 * nmax), 50.0))[0]
         return _StepQP(maps, nmax, H, self.plant.k0, self.fs, self.plant.total_delay_s * self.fs, self.imax,
-                       self.settle, self.plant.bias_a, hf, nlo, self.solver, None)
+                       self.settle, self.plant.bias_a, hf, nlo, self.problem.solver)
 
     def velocity_step(self, velocity_track_s: float) -> VelocityStep:
         """The shortest verified velocity step to ``velocity_track_s`` [track/s] (cached)."""
@@ -513,26 +515,33 @@ class LongSeekDesigner:
 
     def short_designer(self):
         if self._short is None:
-            from seekopt.design.ocp import SeekDesigner
-            self._short = SeekDesigner(self.plant, self.controller, self.imax, self.settle, self.robust,
-                                       band_margin=self.beta, current_margin=self.gamma, hf_guard=self.hf_guard,
-                                       hf_gain=self.hf_gain, hf_tol=self.hf_tol, solver=self.solver)
+            from seekopt.design.designer import SeekDesigner
+            self._short = SeekDesigner(self.problem)
         return self._short
 
-    def design(self, tracks: float):
-        """Design the seek of ``tracks`` tracks -> :class:`seekopt.design.ocp.DesignResult`.
-
-        With a coast: the composition of the velocity step at ``vmax`` (module notes), verified by
-        simulation; without: the rest-to-rest designer, its rigid peak velocity checked against ``vmax``.
-        """
-        from seekopt.design.metrics import evaluate_profile
-        from seekopt.design.ocp import DesignError, DesignResult
-        from seekopt.design.profiles import Profile
+    def check_seek(self, tracks: float) -> float:
+        """Reject at once (before any QP) a seek longer than the stroke, or one that neither coasts nor fits the
+        rest-to-rest designer's horizon (:meth:`SeekDesigner.check_seek`).  Returns ``tracks`` as float."""
         K = float(tracks)
         if not math.isfinite(K) or K == 0:
             raise LongSeekError(f"tracks must be a non-zero number, not {tracks!r}")
         if self.spec.stroke_track is not None and abs(K) > self.spec.stroke_track:
             raise LongSeekError(f"seek of {K:g} tracks is longer than the stroke ({self.spec.stroke_track:g} tracks)")
+        v = self.spec.vmax_track_s
+        if v is None or abs(K) < 0.9 * v * v / (self.plant.k0 * self.imax):
+            self.short_designer().check_seek(K)
+        return K
+
+    def design(self, tracks: float):
+        """Design the seek of ``tracks`` tracks -> :class:`seekopt.design.designer.DesignResult`.
+
+        With a coast: the composition of the velocity step at ``vmax`` (module notes), verified by
+        simulation; without: the rest-to-rest designer, its rigid peak velocity checked against ``vmax``.
+        """
+        from seekopt.design.designer import DesignError, DesignResult
+        from seekopt.design.metrics import evaluate_profile
+        from seekopt.design.profiles import Profile
+        K = self.check_seek(tracks)
         t0 = time.process_time()
         vmax = self.spec.vmax_track_s
         if not self.needs_coast(K):

@@ -85,12 +85,14 @@ def sweep_stroke_mm(results_dir, stroke_mm=None, vmax_mps=None):
 def export_designer(spec: str, plant, controller, imax: float, settle: float):
     """The anchor designer for a sweep's designer ``spec`` (module notes: current margin)."""
     if spec in ("ocp", "ocp-robust"):
-        from seekopt.design.ocp import RobustSpec, SeekDesigner
+        from seekopt.design.designer import SeekDesigner
+        from seekopt.design.problem import SeekProblem
+        from seekopt.design.robust import RobustSpec
         margin = 0.97 - 2 * abs(plant.bias_a) / imax
         if margin <= 0.5:
             raise ExportError(f"bias {plant.bias_a:g} A is too large for Imax {imax:g} A")
-        return SeekDesigner(plant, controller, imax, settle, RobustSpec() if spec == "ocp-robust" else None,
-                            current_margin=margin)
+        return SeekDesigner(SeekProblem(plant, controller, imax, settle, current_margin=margin,
+                                        robust=RobustSpec() if spec == "ocp-robust" else None))
     from seekopt.evaluate.sweep import _designer_factory
     return _designer_factory(spec)(plant, controller, imax, settle)
 
@@ -104,7 +106,7 @@ def build_rule(results_dir, *, stroke_mm=None, vmax_mps=None, budget_kib: float 
     from tqdm.auto import tqdm
     from seekopt import __version__
     from seekopt.design.longseek import LongSeekDesigner, LongSeekSpec
-    from seekopt.design.ocp import RobustSpec
+    from seekopt.design.robust import RobustSpec
     from seekopt.evaluate.sweep import controller_at_tpi
     from seekopt.export.build import AnchorDesigner, ClassSettings, build_seek_set
     from seekopt.export.verify import play_linear
