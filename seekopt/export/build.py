@@ -154,7 +154,7 @@ def _chain(design, k_top, st: ClassSettings, rho: float, vmax):
                 best = g2
         else:
             lo, hi = K0 - 1, g
-            while hi - lo > max(1, lo // 64):        # to ~1.5 %: a slightly shorter class is as good
+            while hi - lo > (1 if lo < K0 else max(1, lo // 64)):   # ~1.5 % once a class is found
                 mid = (lo + hi) // 2
                 lo, hi = (mid, hi) if ok(mid) else (lo, mid)
             best = lo if lo >= K0 else K0
