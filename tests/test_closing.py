@@ -25,7 +25,7 @@ sys.path.insert(0, str(ROOT / "studies"))
 import closing_the_loop as study  # noqa: E402
 
 from identification.loop.closing import close_loop  # noqa: E402
-from identification.logs.seeklog import write_log  # noqa: E402
+from identification.logs import write_log  # noqa: E402
 from identification.loop.report import write_report  # noqa: E402
 from identification.model.plant import ModalPlant  # noqa: E402
 from tests.drives import Schedule, make_log, modal_plant, nss_drive, open_loop  # noqa: E402

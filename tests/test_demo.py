@@ -8,7 +8,7 @@ import time
 import pandas as pd
 import pytest
 
-from identification.logs.seeklog import read_log
+from identification.logs import read_log
 from seekopt.app import demo
 from seekopt.app.cli import main
 from seekopt.evaluate.sweep import ALL_KINDS

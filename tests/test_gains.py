@@ -7,8 +7,9 @@ regressors are also compared with the package's own DiscretePlant (one discretis
 import numpy as np
 import pytest
 
-from identification.estimate.gains import (VarPro, ar_whitener, detect_period, fir_filter, modal_gains, mode_filters,
-                                  mode_regressors, mode_response, periodic_columns, sandwich_cov)
+from identification.estimate.gains import modal_gains, mode_filters, mode_regressors, mode_response
+from identification.estimate.linalg import sandwich_cov
+from identification.estimate.varpro import VarPro, ar_whitener, detect_period, fir_filter, periodic_columns
 from identification.model.plant import ModalPlant, Mode
 from tests.drives import TruthPlant, open_loop
 

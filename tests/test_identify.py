@@ -30,7 +30,7 @@ import numpy as np
 import pytest
 
 from identification.estimate.identify import identify, predict_segments
-from identification.logs.seeklog import LogError, SeekLog, segment_seeks, write_log
+from identification.logs import LogError, SeekLog, segment_seeks, write_log
 from identification.model.plant import ModalPlant
 from identification.estimate.rigid import SegmentProjector
 from identification.estimate.gains import mode_response
@@ -284,6 +284,21 @@ def test_50k_drive_mean_current_only(log_50k):
         df, dz, dg = errors(res.plant, m)
         assert abs(df) < 0.01 and abs(dz) < 0.25 and abs(dg) < 0.25, (m.freq_hz, df, dz, dg)
     assert abs(res.plant.k0 / truth.k0 - 1) < 0.02
+
+
+def test_settings_recorded_and_options_map(default_log, default_ids):
+    """identify(log, method, **options) runs the method's settings with the options applied, the
+    same as passing the settings; the result records them."""
+    from identification.estimate.settings import PaperSettings, RobustSettings
+    log, _ = default_log
+    assert default_ids["robust"].settings == RobustSettings() and default_ids["paper"].settings == PaperSettings()
+    a = identify(log, method="paper", prony_order=6)
+    b = identify(log, settings=PaperSettings(prony_order=6))
+    assert a.settings == b.settings == PaperSettings(prony_order=6)
+    assert a.plant.to_dict() == b.plant.to_dict()
+    assert max(int(k.split("=")[1]) for k in a.poles_per_order) == 6
+    with pytest.raises(ValueError, match="unknown option"):
+        identify(log, method="paper", max_modes=3)
 
 
 # ------------------------------------------------------------------------------------ errors, CLI, figures

@@ -1,4 +1,4 @@
-"""Tests for identification.estimate.prony: LS Prony (paper eqs. 4-7), pooled matrix pencil, CRB.
+"""Tests for identification.estimate.prony and .pencil: LS Prony (paper eqs. 4-7), pooled matrix pencil, CRB.
 
 Signals are a mode's free response written independently in ``tests/drives``
 (:func:`tests.drives.damped_free_response`, from the continuous pole), not the module's own
@@ -8,9 +8,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from identification.estimate.pencil import matrix_pencil, stabilisation_diagram
 from identification.estimate.prony import (PoleEstimate, crb_damped_sinusoid, crb_modes, damped_sinusoid, fit_amplitudes,
-                                  ls_prony, matrix_pencil, modal_to_z, refine_poles, snr_db,
-                                  stabilisation_diagram, z_to_modal)
+                                           ls_prony, modal_to_z, refine_poles, snr_db, z_to_modal)
 from tests.drives import damped_free_response
 
 FS = 26_400.0

@@ -31,7 +31,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import signal
 
-from identification.estimate.gains import ar_whitener, mode_regressors, sandwich_cov
+from identification.estimate.gains import mode_regressors
+from identification.estimate.linalg import sandwich_cov
+from identification.estimate.varpro import ar_whitener
 from identification.logs.seeklog import SeekLog, segment_seeks
 from identification.model.plant import ModalPlant
 
@@ -99,7 +101,7 @@ def detectable_gain(log: SeekLog, plant: ModalPlant, freqs_hz=None, *, zeta: flo
     Detectability
         ``g_min`` is ``inf`` where the log has no excitation at all.
     """
-    from identification.estimate.identify import predict_segments     # the identification's own predictor
+    from identification.estimate.heldout import predict_segments     # the identification's own predictor
     fs, dt = log.sample_rate_hz, log.dt
     f = (np.geomspace(100.0, 0.47 * fs, int(math.ceil(24 * math.log2(0.47 * fs / 100.0))) + 1)
          if freqs_hz is None else np.atleast_1d(np.asarray(freqs_hz, dtype=float)))

@@ -175,11 +175,11 @@ def check_output_dir(path, option: str) -> None:
 
 
 def read_log_cli(path, current_unit: str = "A", args=None):
-    """Read a seek log for a command: :func:`identification.logs.seeklog.read_log`, currents converted
+    """Read a seek log for a command: :func:`identification.logs.read_log`, currents converted
     from ``current_unit`` (``--current-unit``) to A, and a warning for currents implausible for a
     disk drive (:func:`identification.logs.checks.unit_warnings`).  A bad log raises LogError."""
     from identification.logs.checks import convert_current, unit_warnings
-    from identification.logs.seeklog import read_log
+    from identification.logs import read_log
     log = convert_current(read_log(path), current_unit or "A")
     for w in unit_warnings(log):
         warn(args, w)
@@ -297,7 +297,7 @@ def _parse_effect(text: str) -> dict:
 
 # ------------------------------------------------------------------ commands
 def cmd_synth(args) -> int:
-    from identification.logs.seeklog import write_log
+    from identification.logs import write_log
     from seekopt.drive.presets import default_truth_plant
     from seekopt.evaluate.synth import SynthConfig, synthesize
     check_output_file(args.output, "-o", LOG_SUFFIXES)
@@ -425,15 +425,27 @@ def cmd_design(args) -> int:
         raise UsageError(f"--tracks must be a non-zero number of tracks (got {args.tracks})")
     plant, family, controller, names = _plant_family(args.plant, args.controller)
     robust = _robust_choice(args, plant)
+    from seekopt.design.longseek import LongSeekDesigner, LongSeekError, LongSeekSpec
+    for name, v in (("--vmax", args.vmax), ("--stroke", args.stroke)):
+        if v is not None and not (math.isfinite(v) and v > 0):
+            raise UsageError(f"{name} must be a positive number (got {v})")
+    try:
+        spec = LongSeekSpec.from_plant(plant, args.imax, args.vmax, args.stroke)
+    except LongSeekError as exc:
+        raise UsageError(f"{', '.join(names)}: {exc}") from None
+    if spec.stroke_track is not None and abs(args.tracks) > spec.stroke_track:
+        raise UsageError(f"--tracks {args.tracks:g} is longer than the stroke ({spec.stroke_track:g} tracks)")
     try:
         designer = SeekDesigner(SeekProblem(plant, controller, args.imax, args.settle, robust=robust, family=family))
+        if spec.vmax_track_s is not None:   # long seeks coast at vmax (seekopt.design.longseek)
+            designer = LongSeekDesigner(designer.problem, spec, short_designer=designer)
         designer.check_seek(args.tracks)            # impossible seeks: before any QP is built
-    except ProblemError as exc:
+    except (ProblemError, LongSeekError) as exc:
         raise UsageError(f"{', '.join(names)}: {exc}") from None
     try:
-        with progress(args, f"designing the {args.tracks:g}-track seek on {len(designer.plants)} plants"):
+        with progress(args, f"designing the {args.tracks:g}-track seek on {len(getattr(designer, 'plants', [plant]))} plant(s)"):
             res = designer.design(args.tracks)
-    except DesignError as exc:
+    except (DesignError, LongSeekError) as exc:
         print(f"seekopt design: solver failure: {str(exc).splitlines()[0]}", file=sys.stderr)
         return 1
     prof = res.profile
@@ -441,10 +453,14 @@ def cmd_design(args) -> int:
     prof.to_csv(args.output)
     m = res.metrics
     extra = f", {res.fallback_solves} by a fallback solver" if res.fallback_solves else ""
+    coast = (f"; coasts {prof.meta['coast_samples']} samples at {prof.meta['coast_velocity_track_s']:.4g} track/s"
+             if prof.kind == "long_seek" else "")
     print(f"wrote {args.output}: {prof.n} samples; {args.tracks:g} tracks, seek {m.seek_time_s * 1e3:.3f} ms, "
           f"seek-settle {m.settle_time_s * 1e3:.3f} ms ({m.ratio_tbb:.2f} T_bb) on the design plant, "
-          f"peak current {m.peak_current_a:.3f} A; {res.n_solves} QPs ({res.solver}{extra}) in {res.solve_time_s:.3f} s")
-    _print_predictions(res, names)
+          f"peak current {m.peak_current_a:.3f} A{coast}; {res.n_solves} QPs ({res.solver}{extra}) in "
+          f"{res.solve_time_s:.3f} s")
+    if prof.kind != "long_seek":
+        _print_predictions(res, names)
     return 0
 
 
@@ -475,7 +491,7 @@ def cmd_bench(args) -> int:
 def cmd_loop(args) -> int:
     from identification.loop.closing import close_loop
     from identification.estimate.identify import identify
-    from identification.logs.seeklog import read_log
+    from identification.logs import read_log
     from identification.loop.report import write_report
     log = read_log(args.log)
     val = read_log(args.validate) if args.validate else None
@@ -527,13 +543,41 @@ def cmd_sweep(args) -> int:
 
 
 def cmd_export(args) -> int:
+    """``seekopt export RESULTS|PROFILE.csv``: a sweep's designs (``seekopt_tables.*``) and, with the stroke known,
+    tables for every length 1..stroke (``seekopt_seek.*``, :mod:`seekopt.export.playable`); or one design."""
+    from seekopt.export import playable
     from seekopt.export.tables import load_tables, write_tables
     check_output_dir(args.output, "-o")
+    src = Path(args.results)
+    if src.is_file():
+        ts = playable.table_set_from_profile(src)
+        paths = write_tables(ts, args.format, args.output)
+        t = ts.tables[0]
+        print(f"export: one design ({t.tracks} tracks, {t.ff_len} feedforward samples, {ts.meta['ref_format']} "
+              "reference) -> " + ", ".join(map(str, paths)))
+        return 0
+    if not (math.isfinite(args.budget_kib) and args.budget_kib > 0):
+        raise UsageError(f"--budget-kib must be a positive number (got {args.budget_kib})")
+    stroke_mm = playable.sweep_stroke_mm(src, args.stroke_mm, args.vmax_mps) if src.is_dir() else None
     with progress(args, f"quantising the tables of {args.results}"):
         ts = load_tables(args.results)
         paths = write_tables(ts, args.format, args.output)
     print(f"export: {len(ts.tables)} tables ({len(ts.tpis)} TPI x {len(ts.lengths)} lengths, "
           f"{ts.meta['ref_format']} reference) -> " + ", ".join(map(str, paths)))
+    if stroke_mm is None:
+        print("export: no stroke given (--stroke-mm or the plant's meta stroke_mm): only the swept lengths were "
+              "exported; pass --stroke-mm for tables of every length")
+        return 0
+    rule = playable.build_rule(src, stroke_mm=args.stroke_mm, vmax_mps=args.vmax_mps, budget_kib=args.budget_kib,
+                               progress=not getattr(args, "quiet", False))
+    paths = playable.write_seek(rule, args.format, args.output)
+    for s in rule.sets:
+        pk = s.meta["peak_current_a"]
+        print(f"export: {s.tpi} TPI: lengths 1..{s.stroke} in {len(s.classes)} rest-to-rest classes "
+              f"(1..{s.classes[-1].k_hi}) + {len(s.coasts)} coast classes, {s.table_bytes()} bytes of "
+              f"{int(args.budget_kib * 1024)}, peak current " + (f"{pk:.4g} A" if pk is not None else "not checked")
+              + f", coast at {s.meta['coast_velocity_track_s']:.4g} track/s")
+    print("export: playable tables -> " + ", ".join(map(str, paths)))
     return 0
 
 
@@ -632,6 +676,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--robust", nargs="?", const="default", default=None, metavar="SPEC",
                    help="per-mode box instead of --drift (RobustSpec: freq=5,ofreq=1,zeta=30,gain=8,delay=1e-6,n=15, "
                         "percent / s); 'none' for a nominal design (family members still held)")
+    s.add_argument("--vmax", type=float, metavar="TRACK/S",
+                   help="velocity limit [track/s] (default: the plant's meta vmax_mps, or back_emf_v_per_mps and "
+                        "supply_v); seeks long enough accelerate, coast at it and arrive (seekopt.design.longseek)")
+    s.add_argument("--stroke", type=float, metavar="TRACK",
+                   help="full stroke [track] (default: the plant's meta stroke_mm / stroke_track); longer seeks "
+                        "are refused")
     s.add_argument("-o", "--output", required=True, metavar="PROFILE.csv", help="profile CSV to write")
     s.set_defaults(func=cmd_design)
 
@@ -679,11 +729,21 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--no-figures", action="store_true", help="write the table only, no sweep figures (faster)")
     s.set_defaults(func=cmd_sweep)
 
-    s = command("export", "export a sweep's optimal profiles as fixed-point firmware tables")
-    s.add_argument("results", metavar="RESULTS_DIR", help="sweep results folder (from 'seekopt sweep')")
+    s = command("export", "export a sweep's optimal profiles (and tables for every seek length) as fixed-point "
+                          "firmware tables, or one design")
+    s.add_argument("results", metavar="RESULTS_DIR|PROFILE.csv",
+                   help="sweep results folder (from 'seekopt sweep'), or a profile CSV of 'seekopt design' (one design)")
     s.add_argument("--format", choices=["c", "csv", "json"], default="c",
                    help="c: seekopt_tables.h + seekopt_tables.c (int16 Q15 feedforward of Imax, int32 reference "
-                        "in tracks); csv: seekopt_tables.csv; json: seekopt_tables.json (default c)")
+                        "in tracks); csv: seekopt_tables.csv; json: seekopt_tables.json (default c); the same for "
+                        "seekopt_seek.* (every length)")
+    s.add_argument("--stroke-mm", type=float, metavar="MM",
+                   help="full stroke [mm] (default: the plant's meta stroke_mm): also write tables for every seek "
+                        "length 1..stroke at every TPI (seekopt_seek.*, with seekopt_seek_sample())")
+    s.add_argument("--vmax-mps", type=float, metavar="M/S",
+                   help="velocity limit [m/s] (default: the plant's meta vmax_mps, or back_emf_v_per_mps and supply_v)")
+    s.add_argument("--budget-kib", type=float, default=64.0, metavar="KIB",
+                   help="table memory per TPI [KiB] for seekopt_seek.* (default 64)")
     s.add_argument("-o", "--output", required=True, metavar="DIR",
                    help="output folder (created; the table files in it are replaced atomically)")
     s.set_defaults(func=cmd_export)

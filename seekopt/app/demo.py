@@ -257,7 +257,7 @@ class _Stages:
 
 def run_demo(cfg: DemoConfig) -> DemoResult:
     """Run the pipeline; returns every stage's result, the stage timings and the report path."""
-    from identification.logs.seeklog import read_log
+    from identification.logs import read_log
     from seekopt.app.demo_report import demo_report, demo_summary
     from seekopt.drive.controller import Controller
     from seekopt.evaluate.sweep import make_pool
