@@ -8,9 +8,11 @@ from scipy.signal import lfilter
 
 from identification.model.effects import AmplifierLag, ExtraMode, InputDelay, PivotSpringDamper
 from identification.logs.seeklog import SeekLog
-from identification.loop.residual import LinearModel, Windows, fit_percent, seek_windows, simulate
-from identification.loop.residual_analysis import (correlations, detect_spindle, nonlinear_tests, spectra,
-                                              synchronous_average)
+from identification.loop.analysis import (correlations, detect_spindle, nonlinear_tests, spectra,
+                                          synchronous_average)
+from identification.loop.linear import LinearModel
+from identification.loop.residual import fit_percent, simulate
+from identification.loop.windows import Windows, seek_windows
 from seekopt.drive.presets import default_truth_plant
 from seekopt.evaluate.synth import SynthConfig, synthesize
 
@@ -36,13 +38,30 @@ def test_linear_engine_equals_discrete_plant(small_log, effects):
     log, truth = small_log
     plant = truth.copy(effects=effects)
     w = seek_windows(log)
-    ref = simulate(plant, log, w, continuous=True)           # DiscretePlant stepped sample by sample
-    lm = LinearModel(plant, log.dt)
+    ref = simulate(plant, log, w, continuous=False, engine="step")   # DiscretePlant stepped, each seek from rest
+    u = log.input_current()                                  # (n, L): the drive's sub-step currents
+    lm = LinearModel(plant, log.dt, u.shape[1])
     force = np.full(log.n, plant.bias_a)
     if effects and isinstance(effects[0], PivotSpringDamper):
         force += (2 * np.pi * effects[0].freq_hz) ** 2 * effects[0].rest_track / plant.k0
-    e = _project(w, lm.free_basis, log.position_track - lm.response(log.current_a, force, w))
+    e = _project(w, lm.free_basis, log.position_track - lm.response(u, force, w))
     assert np.max(np.abs(e - ref.e)) < 1e-6 * max(1.0, np.max(np.abs(ref.e)))
+
+
+@pytest.mark.parametrize("continuous", [False, True])
+def test_reference_simulation_engines_agree(small_log, continuous):
+    """``simulate``'s linear-engine path equals stepping ``DiscretePlant`` for every effect that
+    does not depend on the state (saturation, run-out, lag, delay, extra mode), with records."""
+    from identification.model.effects import CurrentSaturation, PeriodicDisturbance
+    log, truth = small_log
+    plant = truth.copy(effects=[CurrentSaturation(0.2), AmplifierLag(4000.0), InputDelay(7e-6),
+                                ExtraMode(900.0, 0.04, 0.002), PeriodicDisturbance(120.0, [1, 3], [0.1, 0.02], [0.05, 0.0])])
+    w = seek_windows(log)
+    a = simulate(plant, log, w, continuous=continuous, engine="step", record=True)
+    b = simulate(plant, log, w, continuous=continuous, engine="filter", record=True)
+    assert np.max(np.abs(a.e - b.e)) < 1e-6 * max(1.0, np.max(np.abs(a.e)))
+    k = w.index()
+    assert np.allclose(a.cmd[k], b.cmd[k]) and np.allclose(a.force[k], b.force[k])
 
 
 def test_exact_model_leaves_small_residual_without_noise():

@@ -1,26 +1,27 @@
 """Statistical analysis of an output-error residual (closing the loop).
 
-All pooled over the simulation windows (:class:`identification.loop.residual.Windows`),
-never across a gap: auto- and cross-correlation with coloured-signal confidence
-bands (:func:`correlations`, Ljung's ``sqrt(P/N)`` band), Welch spectra and
-coherence of residual vs current (:func:`spectra`), spindle detection and the
-synchronous average over revolutions (:func:`detect_spindle`,
-:func:`synchronous_average`) and Billings-Zhu / Billings-Voon nonlinear
-correlation tests (:func:`nonlinear_tests`).  Residuals in tracks, currents in
-A, frequencies in Hz, lags in samples.
+All pooled over the simulation windows (:class:`identification.loop.windows.Windows`), never
+across a gap: auto- and cross-correlation with coloured-signal confidence bands
+(:func:`correlations`, Ljung's ``sqrt(P/N)`` band), Welch spectra and coherence of residual vs
+current (:func:`spectra`), the spindle frequency from the log's metadata
+(:func:`spindle_from_metadata`) or detected (:func:`detect_spindle`), the synchronous average
+over revolutions (:func:`synchronous_average`) and Billings-Zhu / Billings-Voon nonlinear
+correlation tests (:func:`nonlinear_tests`) with thresholds from a stated false-alarm rate.
+Residuals in tracks, currents in A, frequencies in Hz, lags in samples.
 """
 from __future__ import annotations
 
+import math
+import re
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
+from scipy.stats import norm
 
-if TYPE_CHECKING:
-    from identification.loop.residual import Windows
+from identification.loop.windows import Windows
 
-__all__ = ["pooled_xcorr", "CorrelationTest", "correlations", "Spectra", "spectra", "detect_spindle",
-           "synchronous_average", "nonlinear_tests"]
+__all__ = ["pooled_xcorr", "CorrelationTest", "correlations", "Spectra", "spectra", "spindle_from_metadata",
+           "detect_spindle", "synchronous_average", "nonlinear_tests", "bartlett_var"]
 
 
 def _segments(windows: Windows, *arrays):
@@ -31,16 +32,23 @@ def _segments(windows: Windows, *arrays):
 def pooled_xcorr(xs: list, ys: list, max_lag: int) -> np.ndarray:
     """Normalised cross-correlation ``rho_xy(tau) = E[x(t) y(t - tau)]/(sx sy)`` for
     ``tau = -max_lag..max_lag``, pooled over segments (products never cross a gap)."""
-    lags = np.arange(-max_lag, max_lag + 1)
-    acc = np.zeros(len(lags))
+    acc = np.zeros(2 * max_lag + 1)
     sxx = sum(float(x @ x) for x in xs)
     syy = sum(float(y @ y) for y in ys)
     for x, y in zip(xs, ys):
         n = len(x)
-        for i, tau in enumerate(lags):
-            if abs(tau) < n:
-                acc[i] += x[tau:] @ y[:n - tau] if tau >= 0 else x[:n + tau] @ y[-tau:]
+        c = np.correlate(x, y, mode="full")          # c[tau + n - 1] = sum_t x(t + tau) y(t)
+        k = min(max_lag, n - 1)
+        acc[max_lag - k:max_lag + k + 1] += c[n - 1 - k:n + k]
     return acc / np.sqrt(max(sxx * syy, 1e-300))
+
+
+def bartlett_var(xs: list, ys: list, max_lag: int) -> float:
+    """Variance of a pooled cross-correlation of two *independent* coloured signals, times N:
+    ``P = sum_{|k| <= K} rho_xx(k) rho_yy(k)`` (Bartlett), ``K = max_lag`` [-]."""
+    rx = pooled_xcorr(xs, xs, max_lag)
+    ry = pooled_xcorr(ys, ys, max_lag)
+    return float(max(np.sum(rx * ry), 1e-12))
 
 
 @dataclass
@@ -75,12 +83,12 @@ def correlations(e_full: np.ndarray, u: np.ndarray, windows: Windows, max_lag: i
     """Whiteness and residual-current cross-correlation (see :class:`CorrelationTest`)."""
     es, us = _segments(windows, e_full, u)
     n = windows.n_samples
-    re = pooled_xcorr(es, es, max_lag)
+    re_ = pooled_xcorr(es, es, max_lag)
     ru = pooled_xcorr(us, us, max_lag)
     rc = pooled_xcorr(es, us, max_lag)
-    P = float(np.sum(re * ru))
+    P = float(np.sum(re_ * ru))
     lags = np.arange(-max_lag, max_lag + 1)
-    return CorrelationTest(lags, re, 1.96 / np.sqrt(n), rc, 1.96 * np.sqrt(max(P, 0) / n), n)
+    return CorrelationTest(lags, re_, 1.96 / np.sqrt(n), rc, 1.96 * np.sqrt(max(P, 0) / n), n)
 
 
 @dataclass
@@ -124,6 +132,39 @@ def spectra(e_full: np.ndarray, u: np.ndarray, windows: Windows, fs: float, nper
     n_ind = max(nseg / 1.9, 2.0)   # 50 % overlap Hann: ~1.9 overlapped segments per independent one
     band = 1.0 - 0.05 ** (1.0 / (n_ind - 1.0))
     return Spectra(np.fft.rfftfreq(nperseg, 1.0 / fs), See, Suu, Seu, coh, float(band), nseg)
+
+
+_NUMBER = re.compile(r"[-+]?\d+(?:\.\d*)?(?:[eE][-+]?\d+)?")
+
+
+def _number(text) -> float | None:
+    m = _NUMBER.match(str(text).strip())
+    return float(m.group()) if m else None
+
+
+def spindle_from_metadata(metadata: dict, sample_rate_hz: float | None = None):
+    """Spindle frequency [Hz] and its source from a log's metadata, or ``(None, reason)``.
+
+    Keys (case-insensitive): ``spindle_hz``; ``rpm`` or ``spindle_rpm`` (/60); ``sectors``
+    (servo sectors per revolution: ``f = sample_rate_hz / sectors``, the servo rate being one
+    PES sample per sector).  When both ``rpm`` and ``sectors`` are given they must agree with
+    the sample rate within 1 % (else the rpm is used and the disagreement is reported)."""
+    md = {str(k).lower(): v for k, v in (metadata or {}).items()}
+    f_rpm = src = None
+    for key, scale in (("spindle_hz", 1.0), ("spindle_rpm", 1 / 60.0), ("rpm", 1 / 60.0)):
+        x = _number(md[key]) if key in md else None
+        if x and x > 0:
+            f_rpm, src = x * scale, f"metadata {key}"
+            break
+    sec = _number(md["sectors"]) if "sectors" in md else None
+    f_sec = sample_rate_hz / sec if (sec and sec > 0 and sample_rate_hz) else None
+    if f_rpm and f_sec and abs(f_rpm / f_sec - 1) > 0.01:
+        return f_rpm, f"{src} (disagrees with sample rate / sectors = {f_sec:.3f} Hz)"
+    if f_rpm:
+        return f_rpm, src + (" (= sample rate / sectors)" if f_sec else "")
+    if f_sec:
+        return f_sec, "metadata sectors (sample rate / sectors)"
+    return None, "no spindle in the metadata"
 
 
 def detect_spindle(e_full: np.ndarray, windows: Windows, fs: float, fmin: float = 20.0,
@@ -178,28 +219,40 @@ def synchronous_average(e_full: np.ndarray, t: np.ndarray, windows: Windows, f0:
     return (np.arange(nbins) + 0.5) / nbins, mean, se, frac
 
 
-def nonlinear_tests(e_full: np.ndarray, u: np.ndarray, y: np.ndarray, windows: Windows,
-                    max_lag: int = 20) -> dict:
-    """Billings-Zhu and Billings-Voon correlation tests (95 % band ``1.96/sqrt(N)``).
+def nonlinear_tests(e_full: np.ndarray, u: np.ndarray, y_model: np.ndarray, windows: Windows,
+                    max_lag: int = 20, false_alarm: float = 0.01, colour_lags: int = 100) -> dict:
+    """Billings-Zhu and Billings-Voon correlation tests, calibrated for coloured signals.
 
-    ``y`` is taken per window minus its mean (head motion within the window), ``'``
-    denotes removal of the mean.  Returns ``{name: (max |rho| over lags, band)}`` for
-    ``BZ_ye_e2`` = rho((y e)', (e^2)'), ``BZ_ye_u2`` = rho((y e)', (u^2)'),
-    ``BV_u2_e`` = rho((u^2)', e), ``BV_u2_e2`` = rho((u^2)', e^2), ``BV_e_eu`` = rho(e, e u)
-    (lags >= 0 for the lagged argument)."""
+    ``'`` denotes removal of the mean; ``y_model`` is the *model's* output (the anchored
+    simulation, per window minus its mean): under a correct linear model it is a function of
+    the current only, whereas the measured position contains the residual itself, so that
+    ``(y e)`` would correlate with ``e^2`` for any model.  Tests (lags >= 0 of the second
+    argument): ``BZ_ye_e2`` = rho((y e)', (e^2)'), ``BZ_ye_u2`` = rho((y e)', (u^2)'),
+    ``BV_u2_e`` = rho((u^2)', e), ``BV_u2_e2`` = rho((u^2)', e^2), ``BV_e_eu`` = rho(e, (e u)').
+
+    Threshold per test: the residual and the current are coloured (force noise integrated by
+    the rigid body, closed loop), so the standard error of a correlation is Bartlett's
+    ``sqrt(P / N)``, ``P = sum_{|k| <= colour_lags} rho_xx(k) rho_yy(k)`` (an effective sample
+    size ``N / P``), and the maximum over the ``max_lag + 1`` lags is compared with
+    ``z sqrt(P / N)``, ``z`` the two-sided normal quantile at ``false_alarm / (max_lag + 1)``
+    (Bonferroni): each test fires on a linear drive with probability at most ``false_alarm``.
+
+    Returns ``{name: (max |rho| over lags, threshold)}``."""
     segs = []
     for a, b in windows.bounds:
-        e, v, w = e_full[a:b], u[a:b], y[a:b] - y[a:b].mean()
-        segs.append((e, v, w))
+        w = y_model[a:b] - np.nanmean(y_model[a:b])
+        segs.append((e_full[a:b], u[a:b], np.nan_to_num(w)))
     n = windows.n_samples
-    band = 1.96 / np.sqrt(n)
+    z = float(norm.isf(false_alarm / (2.0 * (max_lag + 1))))
+    colour = int(min(colour_lags, max(1, np.median([b - a for a, b in windows.bounds]) // 2)))
 
-    def test(fx, fy, two_sided=False):
+    def test(fx, fy):
         xs = [fx(*s) for s in segs]; ys = [fy(*s) for s in segs]
         mx = np.mean(np.concatenate(xs)); my = np.mean(np.concatenate(ys))
-        r = pooled_xcorr([x - mx for x in xs], [z - my for z in ys], max_lag)
-        r = r if two_sided else r[max_lag:]
-        return float(np.max(np.abs(r))), band
+        xs = [x - mx for x in xs]; ys = [q - my for q in ys]
+        r = pooled_xcorr(xs, ys, max_lag)[max_lag:]
+        band = z * math.sqrt(bartlett_var(xs, ys, colour) / n)
+        return float(np.max(np.abs(r))), float(band)
 
     return {
         "BZ_ye_e2": test(lambda e, v, w: w * e, lambda e, v, w: e * e),
