@@ -16,12 +16,11 @@ import re
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import norm
 
 from identification.loop.windows import Windows
 
 __all__ = ["pooled_xcorr", "CorrelationTest", "correlations", "Spectra", "spectra", "spindle_from_metadata",
-           "detect_spindle", "synchronous_average", "nonlinear_tests", "bartlett_var"]
+           "detect_spindle", "significant_spindle", "synchronous_average", "nonlinear_tests"]
 
 
 def _segments(windows: Windows, *arrays):
@@ -41,14 +40,6 @@ def pooled_xcorr(xs: list, ys: list, max_lag: int) -> np.ndarray:
         k = min(max_lag, n - 1)
         acc[max_lag - k:max_lag + k + 1] += c[n - 1 - k:n + k]
     return acc / np.sqrt(max(sxx * syy, 1e-300))
-
-
-def bartlett_var(xs: list, ys: list, max_lag: int) -> float:
-    """Variance of a pooled cross-correlation of two *independent* coloured signals, times N:
-    ``P = sum_{|k| <= K} rho_xx(k) rho_yy(k)`` (Bartlett), ``K = max_lag`` [-]."""
-    rx = pooled_xcorr(xs, xs, max_lag)
-    ry = pooled_xcorr(ys, ys, max_lag)
-    return float(max(np.sum(rx * ry), 1e-12))
 
 
 @dataclass
@@ -176,7 +167,8 @@ def detect_spindle(e_full: np.ndarray, windows: Windows, fs: float, fmin: float 
     ``P`` the periodogram and ``M`` its running median over ``band_hz`` (the local noise
     level, so that the large low-frequency residual does not dominate); the ``1/h``
     weights favour the fundamental over its sub-harmonics.  Returns the ``top`` local
-    maxima as ``[(f0, S)]``, best first (about 1 for noise)."""
+    maxima as ``[(f0, S)]``, best first.  The score of noise at a given frequency is about 1, its
+    maximum over the band several times that: see :func:`significant_spindle`."""
     from scipy.ndimage import median_filter
     x = np.zeros(len(e_full))
     idx = windows.index()
@@ -196,6 +188,32 @@ def detect_spindle(e_full: np.ndarray, windows: Windows, fs: float, fmin: float 
     pk = [i for i in range(1, len(score) - 1) if score[i] >= score[i - 1] and score[i] >= score[i + 1]]
     pk.sort(key=lambda i: -score[i])
     return [(float(cand[i]), float(score[i])) for i in pk[:top]]
+
+
+def significant_spindle(e_full: np.ndarray, windows: Windows, fs: float, false_alarm: float = 0.05,
+                        seed: int = 0):
+    """The best :func:`detect_spindle` peak if it beats chance, else None: ``(f0 [Hz], score, threshold)``.
+
+    The harmonic-sum score of pure noise is far above 1 at its maximum over the candidate band
+    (thousands of candidates), so the peak is compared with the maxima of surrogates that keep
+    each window's spectrum but not a line's phase from window to window (each window's
+    residual multiplied by a random sign): the threshold is the largest of ``ceil(1 /
+    false_alarm) - 1`` surrogate maxima (a peak of noise beats it with probability
+    ``false_alarm``)."""
+    best = detect_spindle(e_full, windows, fs, top=1)
+    if not best:
+        return None
+    rng = np.random.default_rng(seed)
+    null = []
+    for _ in range(max(int(math.ceil(1.0 / false_alarm)) - 1, 1)):
+        s = np.array(e_full, float)
+        for a, b in windows.bounds:
+            s[a:b] *= rng.choice((-1.0, 1.0))
+        pk = detect_spindle(s, windows, fs, top=1)
+        null.append(pk[0][1] if pk else 0.0)
+    f0, score = best[0]
+    thr = float(max(null))
+    return (f0, score, thr) if score > thr else None
 
 
 def synchronous_average(e_full: np.ndarray, t: np.ndarray, windows: Windows, f0: float,
@@ -220,39 +238,52 @@ def synchronous_average(e_full: np.ndarray, t: np.ndarray, windows: Windows, f0:
 
 
 def nonlinear_tests(e_full: np.ndarray, u: np.ndarray, y_model: np.ndarray, windows: Windows,
-                    max_lag: int = 20, false_alarm: float = 0.01, colour_lags: int = 100) -> dict:
-    """Billings-Zhu and Billings-Voon correlation tests, calibrated for coloured signals.
+                    max_lag: int = 20, false_alarm: float = 0.01) -> dict:
+    """Billings-Zhu and Billings-Voon correlation tests, calibrated for a seek log.
 
-    ``'`` denotes removal of the mean; ``y_model`` is the *model's* output (the anchored
-    simulation, per window minus its mean): under a correct linear model it is a function of
-    the current only, whereas the measured position contains the residual itself, so that
-    ``(y e)`` would correlate with ``e^2`` for any model.  Tests (lags >= 0 of the second
-    argument): ``BZ_ye_e2`` = rho((y e)', (e^2)'), ``BZ_ye_u2`` = rho((y e)', (u^2)'),
+    ``'`` denotes removal of the mean; ``y_model`` is the model's output (the anchored
+    simulation, per window minus its mean: the head motion; the measured position would add the
+    residual itself).  Tests (lags ``tau = 0..max_lag`` of the second argument):
+    ``BZ_ye_e2`` = rho((y e)', (e^2)'), ``BZ_ye_u2`` = rho((y e)', (u^2)'),
     ``BV_u2_e`` = rho((u^2)', e), ``BV_u2_e2`` = rho((u^2)', e^2), ``BV_e_eu`` = rho(e, (e u)').
 
-    Threshold per test: the residual and the current are coloured (force noise integrated by
-    the rigid body, closed loop), so the standard error of a correlation is Bartlett's
-    ``sqrt(P / N)``, ``P = sum_{|k| <= colour_lags} rho_xx(k) rho_yy(k)`` (an effective sample
-    size ``N / P``), and the maximum over the ``max_lag + 1`` lags is compared with
-    ``z sqrt(P / N)``, ``z`` the two-sided normal quantile at ``false_alarm / (max_lag + 1)``
-    (Bonferroni): each test fires on a linear drive with probability at most ``false_alarm``.
+    Calibration: the residual is coloured and its products with the seek motion are dominated by
+    a few long seeks, so the white band ``1.96/sqrt(N)`` (and even Bartlett's coloured band) fires
+    on linear drives.  The seeks are the independent units (the effective sample size is their
+    number ``G``, not the number of samples): each lag's cross-product sum is the sum over seeks
+    of per-seek sums ``S_g(tau)``, independent and zero-mean under "no such correlation", so it
+    is studentised by the seeks themselves, ``z(tau) = sum_g S_g / sqrt(G/(G-1) sum_g S_g^2)``
+    (robust to any correlation and scale within a seek), and ``max_tau |z|`` is compared with
+    the Student-t quantile (``G - 1`` degrees of freedom) at the two-sided level
+    ``false_alarm / (max_lag + 1)`` (Bonferroni over lags): each test fires on a linear drive with
+    probability at most ``false_alarm``.  The price is power: ``|z| <= sqrt(G - 1)``, and a
+    residual dominated by one seek gives ``|z|`` near 1.  (In closed loop the current carries the
+    fed-back noise, so these open-loop tests are weak evidence either way; the loop's decisions
+    rest on the candidates' fits and the dependence tests.)
 
-    Returns ``{name: (max |rho| over lags, threshold)}``."""
+    Returns ``{name: (max_tau |z(tau)|, threshold)}`` (both dimensionless)."""
+    from scipy.stats import t as student_t
     segs = []
     for a, b in windows.bounds:
-        w = y_model[a:b] - np.nanmean(y_model[a:b])
-        segs.append((e_full[a:b], u[a:b], np.nan_to_num(w)))
-    n = windows.n_samples
-    z = float(norm.isf(false_alarm / (2.0 * (max_lag + 1))))
-    colour = int(min(colour_lags, max(1, np.median([b - a for a, b in windows.bounds]) // 2)))
+        w = np.nan_to_num(y_model[a:b] - np.nanmean(y_model[a:b]))
+        segs.append((e_full[a:b], u[a:b], w))
+    groups = list(windows.groups)
+    G = len(set(groups))
+    thr = float(student_t.isf(false_alarm / (2.0 * (max_lag + 1)), max(G - 1, 1)))
 
     def test(fx, fy):
         xs = [fx(*s) for s in segs]; ys = [fy(*s) for s in segs]
         mx = np.mean(np.concatenate(xs)); my = np.mean(np.concatenate(ys))
-        xs = [x - mx for x in xs]; ys = [q - my for q in ys]
-        r = pooled_xcorr(xs, ys, max_lag)[max_lag:]
-        band = z * math.sqrt(bartlett_var(xs, ys, colour) / n)
-        return float(np.max(np.abs(r))), float(band)
+        S = {}
+        for g, x, y in zip(groups, xs, ys):
+            n = len(x)
+            c = np.correlate(x - mx, y - my, mode="full")[n - 1:]   # c[tau] = sum_t x(t) y(t - tau)
+            row = np.zeros(max_lag + 1)
+            row[:min(max_lag + 1, n)] = c[:max_lag + 1]
+            S[g] = S.get(g, 0.0) + row
+        S = np.array(list(S.values()))
+        z = S.sum(axis=0) / np.sqrt(np.maximum((S ** 2).sum(axis=0) * G / max(G - 1, 1), 1e-300))
+        return float(np.max(np.abs(z))), thr
 
     return {
         "BZ_ye_e2": test(lambda e, v, w: w * e, lambda e, v, w: e * e),

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import chi2 as _chi2
 
-from identification.loop.analysis import (correlations, detect_spindle, nonlinear_tests, spectra,
+from identification.loop.analysis import (correlations, nonlinear_tests, significant_spindle, spectra,
                                           spindle_from_metadata, synchronous_average)
 from identification.loop.fit_engine import Data, Engine
 from identification.loop.residual import Residual
@@ -148,8 +148,10 @@ def spindle_of(plant: ModalPlant, res: Residual) -> tuple[float, str]:
     f0, src = spindle_from_metadata(res.log.metadata, res.log.sample_rate_hz)
     if f0:
         return f0, src
-    pk = detect_spindle(res.full(), res.windows, res.log.sample_rate_hz)
-    return (pk[0][0], "detected (harmonic-sum peak of the residual)") if pk else (float("nan"), "none")
+    pk = significant_spindle(res.full(), res.windows, res.log.sample_rate_hz)
+    if pk is None:
+        return float("nan"), "none: no spindle in the metadata, no harmonic-sum peak above chance"
+    return pk[0], f"detected (harmonic-sum peak {pk[1]:.1f} of the residual, chance level {pk[2]:.1f})"
 
 
 def sync_null(res: Residual, f0: float, n: int = 12) -> float:

@@ -158,7 +158,7 @@ class LinearModel:
         return x.reshape(-1)
 
     def response(self, cmd, force=None, windows=None, split: bool = False, with_rigid: bool = True,
-                 restart: bool = True):
+                 restart: bool = True, hist_cmd=None):
         """Output [track] of the linear part at each log sample (before that sample's input).
 
         Parameters
@@ -183,6 +183,8 @@ class LinearModel:
             sub-step before it (``DiscretePlant.reset`` with the previous current held, the
             force of the first sample), as the reference simulation does; False: they run
             through the whole log from steady state at the first inputs.
+        hist_cmd : array, optional
+            The command held before each run [A] (default: the sub-step before it).
         """
         n = len(cmd)
         L = self.L
@@ -190,7 +192,7 @@ class LinearModel:
         f = None if force is None else self._fine(force, n)
         lay = _layout(windows, n, L, self.m, restart)
         A, idx, valid = lay["A"], lay["idx"], lay["valid"]
-        hc = c[lay["hist"]]                                            # input held before each run
+        hc = c[lay["hist"]] if hist_cmd is None else np.asarray(hist_cmd, float)   # input held before each run
         w = np.where(lay["in_delay"], hc[:, None], c[lay["idx_delayed"]])
         fr = None if f is None else f[idx]
         hf = None if f is None else f[A]

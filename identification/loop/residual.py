@@ -20,6 +20,7 @@ import numpy as np
 
 from identification.logs.seeklog import SeekLog
 from identification.loop.grid import Grid, eval_forces, eval_inputs, eval_outputs, has_state_effects
+from identification.loop.hybrid import flexible_response, step_seeks
 from identification.loop.linear import LinearModel
 from identification.loop.windows import Windows, seek_windows
 from identification.model.plant import ModalPlant
@@ -142,7 +143,10 @@ def simulate(plant: ModalPlant, log: SeekLog, windows: Windows, passes: int | No
     engine : str
         ``"step"``: step ``DiscretePlant``; ``"filter"``: the exact linear engine
         (:class:`identification.loop.linear.LinearModel`), only for plants without
-        state-dependent effects; ``"auto"``: the filter where it applies.
+        state-dependent effects; ``"hybrid"``: the rigid body stepped for all seeks at once and
+        the modes filtered (:mod:`identification.loop.hybrid`), only per seek
+        (``continuous=False``); ``"auto"``: the filter, else the hybrid where they apply.  All
+        equal ``"step"`` to round-off.
     cache : dict, optional
         Filters of the linear engine (held by the caller).
     """
@@ -160,6 +164,23 @@ def simulate(plant: ModalPlant, log: SeekLog, windows: Windows, passes: int | No
     v = grid.velocity[:, 0]
     anchors = {a: (y[a], v[a]) for a, _ in windows.bounds}
     basis = LinearModel(plant.linear_part(), dt, 1, cache).free_basis
+
+    def per_substep(x):
+        return x.reshape(log.n, grid.L, M).mean(axis=2) if M > 1 else x
+    if engine in ("auto", "hybrid") and not continuous:
+        y_out = eval_outputs(plant.effects, log.time_s)
+        for _ in range(passes):
+            yr, cmd_s, f_s, state, hist = step_seeks(plant, dt, U, windows.spans(), anchors)
+            ysim = yr + flexible_response(plant, dt, cmd_s, f_s, windows, hist, cache) + y_out
+            e, ys, corr = _anchor(y, ysim, windows, basis)
+            for a, c in corr.items():
+                anchors[a] = (anchors[a][0] + c[0], anchors[a][1] + c[1])
+        if not record:
+            return Residual(windows, e, ys, log)
+        inside = np.zeros(log.n, bool)
+        inside[windows.index()] = True
+        return Residual(windows, e, ys, log, np.where(inside[:, None], per_substep(cmd_s), np.nan),
+                        np.where(inside[:, None], per_substep(f_s), np.nan), state)
     starts = set(anchors)
     spans = [(0, log.n)] if continuous else windows.spans()
     for _ in range(passes):
@@ -190,8 +211,6 @@ def simulate(plant: ModalPlant, log: SeekLog, windows: Windows, passes: int | No
     if not record:
         return Residual(windows, e, ys, log)
     # what the steps applied, from the recorded rigid states (the effects' own definitions)
-    def per_substep(x):
-        return x.reshape(log.n, grid.L, M).mean(axis=2) if M > 1 else x
     cmd_r = per_substep(eval_inputs(plant.effects, U, xs[:, :, 0]))
     f_r = per_substep(eval_forces(plant, xs[:, :, 0], xs[:, :, 1]))
     return Residual(windows, e, ys, log, cmd_r, f_r, xs[:, 0, :].copy())

@@ -78,7 +78,7 @@ class LoopSettings:
     min_wald_chi2: float = 16.0
     max_mode_zeta: float = 0.5
     damped_mode_zeta: float = 0.3
-    bias_knots: int = 33
+    bias_knots: int = 65
     search_samples: int = 8000
     false_alarm: float = 0.01
     unexplained_p: float = 1e-4

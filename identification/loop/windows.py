@@ -52,13 +52,15 @@ class Windows:
             else np.zeros(0, int)
 
     def spans(self) -> list:
-        """``[(a, b)]`` runs of contiguous windows (one per seek): what is simulated in one go."""
-        out = []
-        for a, b in self.bounds:
-            if out and out[-1][1] == a:
+        """``[(a, b)]`` runs of contiguous windows of one seek (group): each is simulated in one
+        go from rest at its start."""
+        out, last = [], None
+        for (a, b), g in zip(self.bounds, self.groups):
+            if out and out[-1][1] == a and g == last:
                 out[-1] = (out[-1][0], b)
             else:
                 out.append((a, b))
+            last = g
         return out
 
     def select_groups(self, keep) -> "Windows":
