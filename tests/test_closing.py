@@ -112,7 +112,7 @@ def _noise_data(e_fn, n=60000, win=1000, seed=0):
     """A log-less Data whose windows are ``win`` samples long, and a residual ``e_fn(rng, n)``."""
     from identification.loop.fit_engine import Data
     from identification.logs.seeklog import SeekLog
-    from identification.loop.residual import Windows
+    from identification.loop.windows import Windows
     rng = np.random.default_rng(seed)
     z = np.zeros(n)
     log = SeekLog(np.arange(n) / 1e4, z, z.copy(), z.copy(), 1e4)
@@ -121,23 +121,23 @@ def _noise_data(e_fn, n=60000, win=1000, seed=0):
 
 def test_effective_sample_size():
     from scipy.signal import lfilter
-    from identification.loop.fit_engine import effective_n
+    from identification.loop.stats import effective_n
     d, e = _noise_data(lambda r, n: r.standard_normal(n))
-    assert effective_n(e, d) == pytest.approx(len(e), rel=0.05)          # white: every sample counts
+    assert effective_n(e, d.windows) == pytest.approx(len(e), rel=0.05)          # white: every sample counts
     d, e = _noise_data(lambda r, n: lfilter([1.0], [1.0, -0.9], r.standard_normal(n)))
     # AR(1), phi = 0.9: N / (1 + 2 sum_{k<29} 0.9^k) = N / 18.1 (summed until rho < 0.05)
-    assert effective_n(e, d) == pytest.approx(len(e) / 18.1, rel=0.15)
+    assert effective_n(e, d.windows) == pytest.approx(len(e) / 18.1, rel=0.15)
 
 
 def test_bic_prefers_a_real_smooth_misfit_over_noise():
     """A smooth misfit removed is a large BIC drop even though an AR noise model would predict it."""
-    from identification.loop.fit_engine import bic, effective_n
+    from identification.loop.stats import bic, effective_n
     d, noise = _noise_data(lambda r, n: 0.1 * r.standard_normal(n))
     smooth = np.sin(np.arange(len(noise)) * 2 * np.pi / 500.0)
-    n_eff = effective_n(noise + smooth, d)
-    assert bic(noise + smooth, d, 0, n_eff) - bic(noise, d, 3, n_eff) > 100
+    n_eff = effective_n(noise + smooth, d.windows)
+    assert bic(noise + smooth, 0, n_eff) - bic(noise, 3, n_eff) > 100
     # removing a fraction of a noise-level structure does not pay its parameters
-    assert bic(noise, d, 0, len(noise)) - bic(0.99995 * noise, d, 3, len(noise)) < 0
+    assert bic(noise, 0, len(noise)) - bic(0.99995 * noise, 3, len(noise)) < 0
 
 
 @pytest.fixture(scope="module")

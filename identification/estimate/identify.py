@@ -122,4 +122,11 @@ def identify(log: SeekLog, method: str | None = None, settings: IdentifySettings
                              samples_per_s=log.n / timing["total"] if timing["total"] > 0 else float("inf"))
     fit = None if math.isnan(ident.fit_percent) else round(ident.fit_percent, 3)
     ident.plant.meta.update(method=settings.method, log=log.source or "<arrays>", heldout_fit_percent=fit)
+    if getattr(settings, "blind", False):      # what the log could not show (identification.estimate.blind)
+        from identification.estimate.blind import blind_meta
+        t2 = time.perf_counter()
+        ident.plant.meta.update(blind_meta(log, ident.plant, t_min=settings.t_min,
+                                           freq_range=settings.band(log.sample_rate_hz),
+                                           runout=ident.diagnostics.get("runout")))
+        timing["blind"] = time.perf_counter() - t2
     return ident

@@ -105,7 +105,8 @@ class RobustSettings(IdentifySettings):
 
     Model and search
         ``max_modes`` (most modes fitted), ``t_min`` (least ``|gain| / std`` kept [-]),
-        ``scan`` (look for modes the settle windows do not show), ``max_nfev`` / ``final_nfev``
+        ``blind`` (write into ``plant.meta`` the bands where a mode would have escaped detection,
+        :func:`identification.estimate.blind.blind_meta`), ``scan`` (look for modes the settle windows do not show), ``max_nfev`` / ``final_nfev``
         (residual evaluations per refinement in the search / final stage), ``stage_rows`` (samples
         of the search stage [samples]), ``stage_history`` (samples before its first seek, where
         the mode filters start [samples]).
@@ -142,6 +143,7 @@ class RobustSettings(IdentifySettings):
     """
     max_modes: int = 12
     t_min: float = 5.0
+    blind: bool = True
     scan: bool = True
     max_nfev: int = 25
     final_nfev: int = 10
