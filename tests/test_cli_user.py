@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from identification.logs.seeklog import SeekLog, read_log, write_log
+from identification.logs import SeekLog, read_log, write_log
 from identification.model.plant import ModalPlant, PlantError
 from seekopt.app import cli
 from seekopt.app.cli import main
@@ -497,7 +497,7 @@ def write_mat73(path, log, struct_metadata=False):
     """A MATLAB v7.3 file as MATLAB writes it: HDF5 behind a 512-byte MAT header, columns as (1, n)
     datasets with MATLAB_class attributes, metadata as a uint16 char array (or a struct group)."""
     h5py = pytest.importorskip("h5py")
-    from identification.logs.seeklog import _columns, _header
+    from identification.logs.formats import _columns, _header
     with h5py.File(path, "w", userblock_size=512) as f:
         for k, v in _columns(log).items():
             d = f.create_dataset(k, data=np.asarray(v, float).reshape(1, -1))

@@ -1,4 +1,4 @@
-"""Tests for identification.logs.seeklog: format round trips, every bad-input error, fuzzing, segmentation."""
+"""Tests for identification.logs (seeklog, formats): format round trips, every bad-input error, fuzzing, segmentation."""
 from __future__ import annotations
 
 import io
@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
-from identification.logs import seeklog as logs
-from identification.logs.seeklog import LogError, Seek, SeekLog, read_log, segment_seeks, settle_windows, write_log
+from identification.logs import formats as logs
+from identification.logs import LogError, Seek, SeekLog, read_log, segment_seeks, settle_windows, write_log
 
 FS = 10_000.0
 FUZZ = settings(max_examples=120, deadline=None, database=None,

@@ -219,7 +219,7 @@ def test_loop_linear_model_equals_linear_response():
     force = np.full(len(u), dp.force0) + 1e-3 * np.sin(np.arange(len(u)) / 30)
     lm = LinearModel(p, TS)
     for hc in (0.0, 0.05):
-        rigid, flex = lm.response(u, force, hist_cmd=hc, hist_force=force[0], split=True)
+        rigid, flex = lm.response(u, force, hist_cmd=[hc], split=True)
         x0 = np.zeros(dp.n)
         for i, md in enumerate(p.all_modes()):
             x0[2 + 2 * i] = K0 * md.gain * (hc + force[0]) / md.omega ** 2

@@ -66,7 +66,7 @@ def _value(h5py, name: str, path: str, obj, depth: int = 0):
 
 
 def read_mat73(name: str, raw: bytes) -> tuple[dict[str, Any], dict[str, Any]]:
-    """Columns and metadata of a v7.3 ``.mat`` log (as the other readers of :mod:`.seeklog` return them).
+    """Columns and metadata of a v7.3 ``.mat`` log (as the other readers of :mod:`.formats` return them).
 
     Raises
     ------
@@ -74,7 +74,7 @@ def read_mat73(name: str, raw: bytes) -> tuple[dict[str, Any], dict[str, Any]]:
         h5py is not installed (the message says how to save as v7 instead), the file is not
         readable HDF5, or it holds a variable of an unsupported class.
     """
-    from identification.logs.seeklog import LogError, _split_entries, _why
+    from identification.logs.formats import LogError, _split_entries, _why
     try:
         import h5py
     except ImportError:

@@ -175,11 +175,11 @@ def check_output_dir(path, option: str) -> None:
 
 
 def read_log_cli(path, current_unit: str = "A", args=None):
-    """Read a seek log for a command: :func:`identification.logs.seeklog.read_log`, currents converted
+    """Read a seek log for a command: :func:`identification.logs.read_log`, currents converted
     from ``current_unit`` (``--current-unit``) to A, and a warning for currents implausible for a
     disk drive (:func:`identification.logs.checks.unit_warnings`).  A bad log raises LogError."""
     from identification.logs.checks import convert_current, unit_warnings
-    from identification.logs.seeklog import read_log
+    from identification.logs import read_log
     log = convert_current(read_log(path), current_unit or "A")
     for w in unit_warnings(log):
         warn(args, w)
@@ -207,6 +207,75 @@ def load_pair(plant_path, controller_path, plant=None):
     return plant, controller
 
 
+def _plant_family(paths, controller_path):
+    """``--plant`` once or once per member of a family: ``(nominal, [other members], controller, names)``,
+    every member checked against the controller (:func:`load_pair`) before anything is computed."""
+    paths = list(paths) if isinstance(paths, (list, tuple)) else [paths]
+    plant, controller = load_pair(paths[0], controller_path)
+    plants = [plant] + [load_pair(p, controller_path)[0] for p in paths[1:]]
+    if len(plants) > 1:
+        for p, path in zip(plants, paths):
+            p.meta.setdefault("family_name", Path(path).stem)
+    return plants[0], plants[1:], controller, [Path(p).name for p in paths]
+
+
+def _robust_choice(args, nominal=None):
+    """The design's uncertainty from ``--drift`` (physical drift, repeatable) or ``--robust``: a
+    :class:`~seekopt.design.family.Drift`, a :class:`~seekopt.design.robust.RobustSpec` or None."""
+    from seekopt.design.family import Drift, DriftError
+    from seekopt.design.robust import RobustSpec
+    drift = getattr(args, "drift", None) or []
+    robust = getattr(args, "robust", None)
+    if drift and robust not in (None, "default"):
+        raise UsageError("give --drift (drift in physical terms) or --robust (per-mode box), not both")
+    try:
+        if drift:
+            d = Drift.merged(drift)
+            if nominal is not None:
+                d.check_modes(nominal)
+            return d
+        if robust in (None, "default"):
+            return Drift()                          # ranges from the data (reported std, family spread)
+        return None if str(robust).lower() == "none" else RobustSpec.from_string(robust)
+    except DriftError as exc:
+        raise UsageError(f"--drift: {exc}") from None
+    except ValueError as exc:
+        raise UsageError(f"--robust: {exc}") from None
+
+
+def _print_predictions(res, names) -> None:
+    """Predicted seek-settle times (nominal, each family member, worst over the set) and the guard."""
+    pred, g = res.prediction, res.guard
+    if pred is not None:
+        ms = lambda m: f"{m.settle_time_s * 1e3:.3f} ms ({m.ratio_tbb:.2f} T_bb)"     # noqa: E731
+        for lab, m in pred.members():
+            i = 0 if lab == "nominal" else int(lab.split()[1].rstrip(":"))
+            print(f"  predicted on {names[i] if i < len(names) else lab}: {ms(m)}")
+        print(f"  predicted worst over the {len(pred.labels)}-plant set: {ms(pred.worst_metrics)} on "
+              f"'{pred.labels[pred.worst]}'; binding plant: '{pred.labels[pred.binding]}'")
+    if g is not None:
+        print(f"  unmodelled-mode guard: worst residual {g.worst_band:.3f} band at {g.worst_hz:.0f} Hz "
+              f"({g.worst_reason}); bands " + ", ".join(str(b) for b, _ in g.per_band))
+
+
+def _identify_outputs(logs, output):
+    """Output path per log: ``-o`` as given for one log; for several logs ``-o`` is a folder (``<stem>.json``
+    in it) or a pattern with ``{stem}``."""
+    if not output:
+        return [None] * len(logs)
+    if len(logs) == 1:
+        return [output]
+    if "{stem}" in output:
+        outs = [output.format(stem=Path(x).stem) for x in logs]
+    else:
+        if Path(output).suffix.lower() == ".json":
+            raise UsageError(f"-o {output}: several logs need a folder or a pattern with {{stem}}, not one file")
+        outs = [str(Path(output) / f"{Path(x).stem}.json") for x in logs]
+    if len(set(outs)) != len(outs):
+        raise UsageError(f"-o {output}: two logs would write the same plant file (same file stem)")
+    return outs
+
+
 def _parse_effect(text: str) -> dict:
     """``name:key=value,key=value`` (lists as ``a;b;c``) -> effect dict."""
     name, _, rest = text.partition(":")
@@ -228,7 +297,7 @@ def _parse_effect(text: str) -> dict:
 
 # ------------------------------------------------------------------ commands
 def cmd_synth(args) -> int:
-    from identification.logs.seeklog import write_log
+    from identification.logs import write_log
     from seekopt.drive.presets import default_truth_plant
     from seekopt.evaluate.synth import SynthConfig, synthesize
     check_output_file(args.output, "-o", LOG_SUFFIXES)
@@ -253,19 +322,44 @@ def cmd_synth(args) -> int:
 
 
 def cmd_identify(args) -> int:
-    """``seekopt identify LOG [-o plant.json] [--method robust|paper] [--figures DIR] [--current-unit mA]``:
-    identify the modal plant, print the modes with one-standard-deviation uncertainties, k0, bias,
-    delay and the held-out fit; a bad log raises LogError (one line, exit 2 via :func:`main`)."""
+    """``seekopt identify LOG [LOG ...] [-o plant.json | -o DIR] [--method robust|paper] [--figures DIR]
+    [--current-unit mA]``: identify the modal plant of each log (several logs of one drive --
+    temperatures, heads, zones -- give a family of plants), print the modes with one-standard-deviation
+    uncertainties, k0, bias, delay, the held-out fit and the bands where a mode would have escaped
+    detection; a bad log raises LogError (one line, exit 2 via :func:`main`) before anything is identified."""
+    logs = list(args.log) if isinstance(args.log, (list, tuple)) else [args.log]
+    outs = _identify_outputs(logs, args.output)
+    for out in outs:
+        if out is not None and len(logs) > 1:
+            check_output_dir(str(Path(out).parent), "-o")
+        else:
+            check_output_file(out, "-o", (".json",))
+    check_output_dir(args.figures, "--figures")
+    loaded = [read_log_cli(x, args.current_unit, args) for x in logs]   # every log checked before the long work
+    plants = []
+    for path, log, out in zip(logs, loaded, outs):
+        figs = args.figures if len(logs) == 1 or not args.figures else str(Path(args.figures) / Path(path).stem)
+        plants.append(_identify_one(args, path, log, out, figs))
+    if len(plants) > 1:
+        from seekopt.design.family import family_spread
+        sp = family_spread(plants[0], plants[1:])
+        print(f"family of {len(plants)} plants, relative to {Path(logs[0]).name}:")
+        for path, (t, z, g, d) in zip(logs[1:], sp["members"]):
+            print(f"  {Path(path).name}: frequencies x{1 + t:.4f}, damping x{1 + z:.3f}, gain (k0) x{1 + g:.4f}, "
+                  f"delay {d * 1e6:+.3f} us")
+    return 0
+
+
+def _identify_one(args, path, log, output, figures):
+    """Identify one log and print its plant (see :func:`cmd_identify`); returns the plant."""
     from identification.estimate.identify import identify
     from identification.logs.checks import k0_warning
     from identification.logs.seeklog import segment_seeks
-    check_output_file(args.output, "-o", (".json",))
-    check_output_dir(args.figures, "--figures")
-    log = read_log_cli(args.log, args.current_unit, args)
-    with progress(args, f"identifying the plant from {len(segment_seeks(log))} seeks ({args.method})"):
+    which = f"of {path} " if len(getattr(args, "log", [])) > 1 else ""
+    with progress(args, f"identifying the plant {which}from {len(segment_seeks(log))} seeks ({args.method})"):
         res = identify(log, method=args.method)
     p, sd = res.plant, res.plant.std
-    w = k0_warning(p.k0, str(args.log))
+    w = k0_warning(p.k0, str(path))
     if w:
         warn(args, w)
 
@@ -273,7 +367,7 @@ def cmd_identify(args) -> int:
         s = (std or {}).get(key)
         return f"{value:{fmt}} ± {s:.2g}" if s is not None and s == s else f"{value:{fmt}}"
     d = res.diagnostics
-    print(f"{args.log}: {log.n} samples at {log.sample_rate_hz:g} Hz, {d.get('n_seeks')} seeks "
+    print(f"{path}: {log.n} samples at {log.sample_rate_hz:g} Hz, {d.get('n_seeks')} seeks "
           f"({d.get('n_fit_seeks')} fitted, {d.get('n_heldout_seeks')} held out); method {res.method}")
     print(f"  k0    = {pm(p.k0, 'k0', sd, '.6g')} track/(A s^2)")
     print(f"  bias  = {pm(p.bias_a * 1e3, 'bias_a', {k: v * 1e3 for k, v in sd.items()}, '.4f')} mA")
@@ -293,36 +387,44 @@ def cmd_identify(args) -> int:
                   "     mode table above is not affected; see docs/results_identification.md)")
     else:
         print("  held-out fit: n/a (too few seeks to hold any out)")
-    if args.output:
-        p.to_json(args.output)
-        print(f"wrote {args.output}")
-    if args.figures:
+    blind = p.meta.get("blind_bands")
+    if blind is not None:
+        det = p.meta.get("blind_detect", {})
+        txt = "; ".join(f"{b['lo_hz']:.0f}-{b['hi_hz']:.0f} Hz ({b['reason']}"
+                        + (f", up to g {b['min_detectable_gain']:.2g})" if b.get("min_detectable_gain") else ")")
+                        for b in blind)
+        print(f"  blind (a mode of gain {det.get('gain', float('nan')):g} would escape detection): {txt or 'none'}")
+    if output:
+        Path(output).parent.mkdir(parents=True, exist_ok=True)
+        p.to_json(output)
+        print(f"wrote {output}")
+    if figures:
         from identification.estimate.figures import plot_identification
         with progress(args, "drawing the figures"):
-            paths = plot_identification(log, res, args.figures)
-        for path in paths:
-            print(f"wrote {path}")
-    return 0
+            paths = plot_identification(log, res, figures)
+        for fig in paths:
+            print(f"wrote {fig}")
+    return p
 
 
 def cmd_design(args) -> int:
     """``seekopt design``: minimum seek-settle-time profile -> Profile CSV (see :mod:`seekopt.design.designer`).
 
+    ``--plant`` once, or once per member of a family (the first is the nominal plant; the profile holds
+    the band on every member); ``--drift`` states the drift in physical terms (default: from the data).
     The problem is checked before any QP is built (closed loop of every plant of the robust set, a
-    seek beyond the design horizon at ``--imax``): one line, exit 2."""
+    seek beyond the design horizon at ``--imax``): one line, exit 2.  Prints the predicted seek-settle
+    time on the nominal plant, on each member and the worst over the set (which plant binds) and the
+    unmodelled-mode guard's worst residual; all are in the profile's metadata."""
     from seekopt.design.designer import DesignError, SeekDesigner
     from seekopt.design.problem import ProblemError, SeekProblem
-    from seekopt.design.robust import RobustSpec
     check_output_file(args.output, "-o", (".csv",))
     for name, v in (("--imax [A]", args.imax), ("--settle [track]", args.settle)):
         check_positive(v, name)
     if not math.isfinite(args.tracks) or args.tracks == 0:
         raise UsageError(f"--tracks must be a non-zero number of tracks (got {args.tracks})")
-    plant, controller = load_pair(args.plant, args.controller)
-    try:
-        robust = None if str(args.robust).lower() == "none" else RobustSpec.from_string(args.robust)
-    except ValueError as exc:
-        raise UsageError(f"--robust: {exc}") from None
+    plant, family, controller, names = _plant_family(args.plant, args.controller)
+    robust = _robust_choice(args, plant)
     from seekopt.design.longseek import LongSeekDesigner, LongSeekError, LongSeekSpec
     for name, v in (("--vmax", args.vmax), ("--stroke", args.stroke)):
         if v is not None and not (math.isfinite(v) and v > 0):
@@ -330,24 +432,24 @@ def cmd_design(args) -> int:
     try:
         spec = LongSeekSpec.from_plant(plant, args.imax, args.vmax, args.stroke)
     except LongSeekError as exc:
-        raise UsageError(f"{args.plant}: {exc}") from None
+        raise UsageError(f"{', '.join(names)}: {exc}") from None
     if spec.stroke_track is not None and abs(args.tracks) > spec.stroke_track:
         raise UsageError(f"--tracks {args.tracks:g} is longer than the stroke ({spec.stroke_track:g} tracks)")
     try:
-        designer = SeekDesigner(SeekProblem(plant, controller, args.imax, args.settle, robust=robust))
+        designer = SeekDesigner(SeekProblem(plant, controller, args.imax, args.settle, robust=robust, family=family))
         if spec.vmax_track_s is not None:   # long seeks coast at vmax (seekopt.design.longseek)
             designer = LongSeekDesigner(designer.problem, spec, short_designer=designer)
         designer.check_seek(args.tracks)            # impossible seeks: before any QP is built
     except (ProblemError, LongSeekError) as exc:
-        raise UsageError(f"{args.plant}: {exc}") from None
+        raise UsageError(f"{', '.join(names)}: {exc}") from None
     try:
-        with progress(args, f"designing the {args.tracks:g}-track seek"):
+        with progress(args, f"designing the {args.tracks:g}-track seek on {len(getattr(designer, 'plants', [plant]))} plant(s)"):
             res = designer.design(args.tracks)
     except (DesignError, LongSeekError) as exc:
         print(f"seekopt design: solver failure: {str(exc).splitlines()[0]}", file=sys.stderr)
         return 1
     prof = res.profile
-    prof.meta.update(plant_file=Path(args.plant).name, controller_name=controller.name)
+    prof.meta.update(plant_file=";".join(names), controller_name=controller.name)
     prof.to_csv(args.output)
     m = res.metrics
     extra = f", {res.fallback_solves} by a fallback solver" if res.fallback_solves else ""
@@ -357,6 +459,8 @@ def cmd_design(args) -> int:
           f"seek-settle {m.settle_time_s * 1e3:.3f} ms ({m.ratio_tbb:.2f} T_bb) on the design plant, "
           f"peak current {m.peak_current_a:.3f} A{coast}; {res.n_solves} QPs ({res.solver}{extra}) in "
           f"{res.solve_time_s:.3f} s")
+    if prof.kind != "long_seek":
+        _print_predictions(res, names)
     return 0
 
 
@@ -368,13 +472,15 @@ def cmd_bench(args) -> int:
         check_positive(v, name)
     if not math.isfinite(args.tracks) or args.tracks == 0:
         raise UsageError(f"--tracks must be a non-zero number of tracks (got {args.tracks})")
-    plant, controller = load_pair(args.plant, args.controller)
+    plant, family, controller, names = _plant_family(args.plant, args.controller)
+    robust = _robust_choice(args, plant)
     truth = _load_plant(args.truth) if args.truth else None
     if truth is not None:
         load_pair(args.truth, args.controller, plant=truth)
     with progress(args, f"benchmarking the {args.tracks:g}-track seek"):
-        res = run_bench(plant, controller, args.tracks, args.imax, args.settle, truth=truth, figures=args.figures)
-    print(f"design plant {Path(args.plant).name}, evaluated on "
+        res = run_bench(plant, controller, args.tracks, args.imax, args.settle, truth=truth, figures=args.figures,
+                        robust=robust, family=family)
+    print(f"design plant {', '.join(names)}, evaluated on "
           f"{Path(args.truth).name if args.truth else 'the design plant'}")
     print(format_table(res))
     for f in res.figures:
@@ -382,23 +488,56 @@ def cmd_bench(args) -> int:
     return 0
 
 
+def _output_path(path, what: str) -> None:
+    """A file we are about to write: its folder must exist and it must not be a folder."""
+    p = Path(path)
+    if p.is_dir():
+        raise UsageError(f"{path}: {what} is a directory")
+    if not p.parent.is_dir():
+        raise UsageError(f"{path}: folder {p.parent} for the {what} does not exist")
+
+
 def cmd_loop(args) -> int:
+    """``seekopt loop LOG [--plant P.json] [--validate VAL] --report R.json [-o AUGMENTED.json]``: close the
+    loop (:func:`identification.loop.closing.close_loop`) from the identified plant (or ``--plant``), write
+    the report (JSON + Markdown, figures with ``--figures``) and, with ``-o``, the augmented plant (linear
+    part + accepted effects, the plant JSON that ``design``, ``bench`` and ``sweep`` read).  Inputs are
+    checked before any long computation; progress goes to stderr (one line per stage) unless ``--quiet``."""
+    import time
+    from identification.logs import read_log
     from identification.loop.closing import close_loop
-    from identification.estimate.identify import identify
-    from identification.logs.seeklog import read_log
     from identification.loop.report import write_report
+    from identification.loop.windows import seek_windows
+    t0 = time.time()
+    say = (lambda msg: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
     log = read_log(args.log)
     val = read_log(args.validate) if args.validate else None
-    model = identify(log, method="robust").plant
+    model = _load_plant(args.plant) if args.plant else None
+    _output_path(args.report, "report")
+    if args.output:
+        _output_path(args.output, "augmented plant")
+        if Path(args.output).resolve() == Path(args.report).resolve():
+            raise UsageError(f"{args.output}: -o and --report name the same file")
+    if val is None and seek_windows(log).n_groups < 4:
+        raise UsageError(f"{args.log}: needs at least 4 seeks to hold some out for validation "
+                         f"(has {seek_windows(log).n_groups}); give --validate LOG")
+    if model is None:
+        from identification.estimate.identify import identify
+        ts = time.time()
+        model = identify(log, method="robust").plant
+        say(f"loop: identified the plant on {Path(args.log).name}: {len(model.modes)} modes, delay "
+            f"{1e6 * model.total_delay_s:.2f} us ({time.time() - ts:.1f} s)")
     try:
-        result = close_loop(log, model, validation=val)
+        result = close_loop(log, model, validation=val, progress=say)
     except ValueError as exc:
         raise UsageError(f"{args.log}: {exc}") from None
     write_report(result, args.report, args.figures)
+    if args.output:
+        result.augmented_plant().to_json(args.output)
     acc = ", ".join(result.accepted) or "none"
-    print(f"wrote {args.report}: validation rms {result.error_before['rms_track']:.4g} -> "
-          f"{result.error_after['rms_track']:.4g} track; accepted: {acc}; "
-          f"{len(result.unexplained)} unexplained item(s)")
+    print(f"wrote {args.report}" + (f" and {args.output}" if args.output else "") +
+          f": validation rms {result.error_before['rms_track']:.4g} -> {result.error_after['rms_track']:.4g} track; "
+          f"accepted: {acc}; {len(result.unexplained)} unexplained item(s); {time.time() - t0:.1f} s")
     return 0
 
 
@@ -411,9 +550,11 @@ def cmd_sweep(args) -> int:
     check_positive(args.settle, "--settle [track]")
     if args.workers is not None and args.workers < 1:
         raise UsageError(f"--workers must be at least 1 (got {args.workers})")
-    plant, controller = load_pair(args.plant, args.controller)
+    plant, family, controller, _ = _plant_family(args.plant, args.controller)
+    if args.drift:
+        _robust_choice(args, plant)                 # a bad --drift is an input error before anything runs
     cfg = SweepConfig(plant, controller, parse_tpi(args.tpi), parse_tracks(args.tracks), args.imax, args.settle,
-                      designer=args.designer)
+                      designer=args.designer, family=family, drift=",".join(args.drift) or None)
     s = run_sweep(cfg, args.output, engine=args.dask or "process", workers=args.workers,
                   progress=not args.quiet, figures=not args.no_figures)
     others = f", {s.by_others} by another sweep" if s.by_others else ""
@@ -476,7 +617,8 @@ def cmd_export(args) -> int:
 def cmd_demo(args) -> int:
     from seekopt.app.demo import DemoConfig, run_demo
     check_output_dir(args.output, "-o")
-    run_demo(DemoConfig(log=args.log, outdir=args.output, quick=args.quick))
+    run_demo(DemoConfig(log=args.log, outdir=args.output, quick=args.quick,
+                        quiet=bool(getattr(args, "quiet", False))))
     return 0
 
 
@@ -537,9 +679,11 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--truth", metavar="PLANT.json", help="also write the truth plant JSON here")
     s.set_defaults(func=cmd_synth)
 
-    s = command("identify", "identify the modal plant (k0, bias, delay, modes) from a seek log")
-    s.add_argument("log", help="seek log (.csv, .npz, or .mat v5/v7/v7.3)")
-    s.add_argument("-o", "--output", metavar="PLANT.json", help="plant JSON to write")
+    s = command("identify", "identify the modal plant (k0, bias, delay, modes) from a seek log (several logs: a family)")
+    s.add_argument("log", nargs="+", help="seek log(s) (.csv, .npz, or .mat v5/v7/v7.3); several logs of one drive "
+                                          "(temperatures, heads, zones) give a family of plants")
+    s.add_argument("-o", "--output", metavar="PLANT.json",
+                   help="plant JSON to write (several logs: a folder, or a pattern with {stem})")
     s.add_argument("--method", choices=["robust", "paper"], default="robust",
                    help="robust (default: pooled matrix pencil, exact multirate hold, uncertainties) or paper "
                         "(the paper's eqs. 4-11 exactly)")
@@ -549,17 +693,22 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=cmd_identify)
 
     s = command("design", "design a minimum seek-settle-time seek profile (feedforward current + reference)")
-    s.add_argument("--plant", required=True, metavar="PLANT.json", help="design plant JSON (from 'seekopt identify')")
+    s.add_argument("--plant", required=True, action="append", metavar="PLANT.json",
+                   help="design plant JSON (from 'seekopt identify'); repeat for a family of plants of one drive "
+                        "(the first is the nominal one; the profile holds the band on every member)")
     s.add_argument("--controller", metavar="CONTROLLER.json", help=_CONTROLLER_HELP)
     s.add_argument("--tracks", type=float, required=True, metavar="K",
                    help="seek length [track] (non-zero; the sign gives the direction)")
     s.add_argument("--imax", type=float, required=True, metavar="A",
                    help="current limit [A] on the total current (feedforward + feedback), every sub-step")
     s.add_argument("--settle", type=float, default=0.1, metavar="TRACK", help="settle band half-width [track] (default 0.1)")
-    s.add_argument("--robust", nargs="?", const="default", default="default", metavar="SPEC",
-                   help="robust design set (default: RobustSpec() -- seek-induced modes +-5 %%, others +-1 %%, "
-                        "zeta +-30 %%, gain +-8 %%, delay +-1 us); e.g. freq=5,ofreq=1,zeta=30,gain=8,delay=1e-6,n=15 "
-                        "(percent / s); 'none' for a nominal design")
+    s.add_argument("--drift", action="append", default=[], metavar="SPEC",
+                   help="drift in physical terms, e.g. temp=±4%%,zeta=±20%%,gain=±5%%,delay=±1us, per mode "
+                        "f1738=±5%%, f1738.zeta=±30%% (repeatable); unstated ranges come from the data (reported "
+                        "std, the family's members; seek-induced modes ±5%%); see 'Operating range' in the README")
+    s.add_argument("--robust", nargs="?", const="default", default=None, metavar="SPEC",
+                   help="per-mode box instead of --drift (RobustSpec: freq=5,ofreq=1,zeta=30,gain=8,delay=1e-6,n=15, "
+                        "percent / s); 'none' for a nominal design (family members still held)")
     s.add_argument("--vmax", type=float, metavar="TRACK/S",
                    help="velocity limit [track/s] (default: the plant's meta vmax_mps, or back_emf_v_per_mps and "
                         "supply_v); seeks long enough accelerate, coast at it and arrive (seekopt.design.longseek)")
@@ -570,9 +719,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=cmd_design)
 
     s = command("bench", "benchmark the optimal profiles against the paper's sine and windowed sine")
-    s.add_argument("--plant", required=True, metavar="PLANT.json", help="design plant JSON")
+    s.add_argument("--plant", required=True, action="append", metavar="PLANT.json",
+                   help="design plant JSON; repeat for a family (the robust variant holds every member)")
     s.add_argument("--controller", metavar="CONTROLLER.json", help=_CONTROLLER_HELP)
     s.add_argument("--truth", metavar="PLANT.json", help="play the profiles on this plant (default: the design plant)")
+    s.add_argument("--drift", action="append", default=[], metavar="SPEC", help="drift of the robust variant (as for design)")
+    s.add_argument("--robust", default=None, metavar="SPEC", help="per-mode box of the robust variant instead; 'none'")
     s.add_argument("--tracks", type=float, default=200.0, metavar="K", help="seek length [track] (default 200)")
     s.add_argument("--imax", type=float, required=True, metavar="A", help="current limit [A]")
     s.add_argument("--settle", type=float, default=0.1, metavar="TRACK", help="settle band half-width [track] (default 0.1)")
@@ -581,13 +733,18 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = command("loop", "close the loop: residual analysis and model augmentation")
     s.add_argument("log", help="seek log (.csv, .npz or .mat)")
+    s.add_argument("--plant", metavar="PLANT.json", help="start from this plant JSON instead of identifying the log")
     s.add_argument("--validate", help="validation log (default: held-out seeks)")
     s.add_argument("--report", required=True, help="report JSON")
+    s.add_argument("-o", "--output", help="write the augmented plant JSON (linear part + accepted effects)")
     s.add_argument("--figures", help="folder for residual figures and the Markdown report")
     s.set_defaults(func=cmd_loop)
 
     s = command("sweep", "sweep optimal designs over track density (TPI) and seek length")
-    s.add_argument("--plant", required=True, metavar="PLANT.json", help="plant JSON with track_pitch_nm")
+    s.add_argument("--plant", required=True, action="append", metavar="PLANT.json",
+                   help="plant JSON with track_pitch_nm; repeat for a family (the optimal designs hold every member)")
+    s.add_argument("--drift", action="append", default=[], metavar="SPEC",
+                   help="drift of the ocp-robust designer (as for design; default from the data)")
     s.add_argument("--controller", metavar="CONTROLLER.json", help=_CONTROLLER_HELP + " (its gain is scaled with the track pitch)")
     s.add_argument("--tpi", required=True, metavar="SPEC",
                    help="track densities [track/inch]: start:stop:count (e.g. 200k:1000k:9) or a list (200k,500k)")

@@ -40,7 +40,9 @@ from threadpoolctl import threadpool_limits
 
 from identification.model.plant import ModalPlant
 
-from seekopt.design import qp as _qp
+from seekopt.design import guard as _guard, qp as _qp
+from seekopt.design.predict import SetPrediction, predict_on_set, scale_feedforward_maps
+from seekopt.design.guard import GuardReport
 from seekopt.design.metrics import SeekMetrics, evaluate_profile, worst_case
 from seekopt.design.problem import ProblemError, SeekProblem, check_closed_loop
 from seekopt.design.profiles import Profile, finish_profile, reference_from_model, rigid_endpoint_matrix, t_bang_bang
@@ -64,7 +66,11 @@ class DesignResult:
 
     ``metrics`` are measured by :func:`seekopt.design.metrics.evaluate_profile` on the design plant
     (the full plant, effects included); ``worst_metrics`` the worst case over the robust set (when
-    checked).  ``solve_time_s`` sums the QP solves of this design; ``objective`` is
+    checked).  ``prediction`` holds the profile's seek-settle time on every plant of the set (nominal,
+    family members, drift vertices: :class:`seekopt.design.family.SetPrediction`, worst and binding
+    plant) and ``guard`` the worst residual it leaves in the guarded unmodelled modes
+    (:class:`seekopt.design.guard.GuardReport`); both are also in the profile's metadata.
+    ``solve_time_s`` sums the QP solves of this design; ``objective`` is
     ``"min_settle/<worst|mean>"`` or ``"min_residual/<worst|mean>"``.  ``fallback_solves`` counts the
     QPs a fallback solver answered after the primary failed without proof; ``unresolved_solves``
     the QPs no solver decided (skipped).
@@ -84,6 +90,8 @@ class DesignResult:
     build_time_s: float = 0.0
     fallback_solves: int = 0
     unresolved_solves: int = 0
+    prediction: SetPrediction | None = None
+    guard: GuardReport | None = None
 
 
 class _Stats:
@@ -136,6 +144,8 @@ class SeekDesigner:
         self.solver_name = p.solver.qp_solver
         self.beta, self.gamma = p.band_margin, p.current_margin
         self.hf_guard, self.hf_gain, self.hf_tol = p.hf_guard, p.hf_gain, p.hf_tol
+        self.guard_bands = _guard.problem_bands(p)     # Nyquist, controller notches, blind bands
+        self.guard_curve = _guard.plant_gain_curve(p.plant)   # what the identification could have seen
         self.slew = p.slew_a_per_s
         self.check_robust = p.check_robust
         self.max_samples = int(p.solver.max_samples)
@@ -163,7 +173,8 @@ class SeekDesigner:
     def _loop_maps(self, horizon: int) -> list:
         if self._maps is None or self._maps_h < horizon:
             h = max(horizon, 2 * self._maps_h)
-            self._maps = [_qp.LoopMaps(p, self.controller, h) for p in self.plants]
+            # a plant of the set whose gain differs plays the profile through its drive's gain calibration
+            self._maps = [scale_feedforward_maps(_qp.LoopMaps(p, self.controller, h), p) for p in self.plants]
             self._maps_h = h
             self.map_builds += 1
         return self._maps
@@ -181,11 +192,10 @@ class SeekDesigner:
                 imp = np.zeros(H); imp[0] = 1.0
                 hm = reference_from_model(self._reference_model(), imp, self.fs, H)
                 R = _qp.toeplitz_rows(hm, np.arange(H), H)
-            hf = None
-            if self.hf_guard:
-                lo, hi = self.hf_guard
-                hf = _qp.hf_guard_matrix(self.plant.k0, self.fs, self.L, H * self.L, lo * self.fs, hi * self.fs,
-                                         self.hf_gain, spacing_hz=max(self.fs / (2 * nmax), 50.0))
+            dfg = _guard.grid_spacing(self.fs, nmax)
+            hf = _guard.guard_rows(self.guard_bands, self.plant.k0, self.fs, self.L, H * self.L, spacing_hz=dfg,
+                                   extra_hz=_guard.loop_peaks(maps[0], self.guard_bands, self.fs, dfg),
+                                   curve=self.guard_curve)
             band_plants = range(len(self.plants)) if self.objective_kind == "worst" else [0]
             s = self.settings
             self._qps[key] = _qp.SeekQP(
@@ -215,7 +225,7 @@ class SeekDesigner:
         return self._ws[qp]
 
     def _solve(self, qp: _qp.SeekQP, K, n, beta, stats: _Stats, warm=None, epigraph=False):
-        hf_tol = self.hf_tol if self.hf_guard else None
+        hf_tol = self.hf_tol if self.guard_bands else None
         args = (K, n, None if epigraph else beta, self.gamma, hf_tol, self.slew)
         tol = self.settings.violation_tol
         bounds = qp.bounds(*args)
@@ -376,6 +386,7 @@ class SeekDesigner:
         if np.max(np.abs(M @ u - [K, 0.0])) > 1e-6 or not np.all(np.isfinite(u)):
             raise DesignError(f"design misses rest at {K:g} tracks")
         meta = {"plant_hash": self.plant.hash(), "controller_hash": self.controller.hash(),
+                **({"family_hashes": ";".join(p.hash() for p in self.problem.family)} if self.problem.family else {}),
                 "design_objective": objective, "solver": self.solver_name, "reference": self.reference,
                 "robust": self.robust.to_string() if self.robust else "none",
                 "band_margin": self.beta, "current_margin": self.gamma, "design_settle_samples": N}
@@ -392,17 +403,25 @@ class SeekDesigner:
             raise DesignError(f"design exceeds Imax in simulation ({metrics.peak_current_a:.4g} A)")
         if strict and not metrics.settle_time_s * self.fs <= N + 1 + 1e-9:
             raise DesignError(f"design does not settle by sample {N} in simulation")
-        worst = None
-        if self.check_robust and len(self.plants) > 1:
-            worst = worst_case([metrics] + [evaluate_profile(p, self.controller, prof, settle=self.settle,
-                                                             k0_for_tbb=self.plant.k0) for p in self.plants[1:]])
+        worst, pred = None, None
+        if len(self.plants) > 1:        # honest predictions: every plant of the set, by the one simulator
+            pred = predict_on_set(self.plants, self.controller, prof, self.settle, self.plant.k0, first=metrics)
+            prof.meta.update(pred.to_meta())
+            if self.check_robust:
+                worst = worst_case(pred.metrics)
+        guard = None
+        if self.guard_bands:
+            guard = _guard.guard_report(self.plant, self.controller, prof, self.guard_bands, self.settle,
+                                        curve=self.guard_curve)
+            prof.meta.update(guard.to_meta())
         prof.meta["design_status"] = "verified"
         return DesignResult(prof, metrics, "verified", stats.t, sol.solver or self.solver_name, objective,
                             settle_samples=N, n_solves=stats.n,
                             residual_band=qp.residual(sol.x, K, N) * 1.0, worst_metrics=worst,
                             qp_status=stats.status,
                             build_time_s=sum(q.build_time_s for q in self._qps.values()),
-                            fallback_solves=stats.fallback, unresolved_solves=len(stats.unresolved))
+                            fallback_solves=stats.fallback, unresolved_solves=len(stats.unresolved),
+                            prediction=pred, guard=guard)
 
 
 def design_seek(plant: ModalPlant, controller, tracks: float, imax: float, settle: float = 0.1,

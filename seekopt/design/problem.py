@@ -129,8 +129,12 @@ class SeekProblem:
         set does not cover; at K = 200 on the identified plant 0.7 -> 2.12 T_bb, 0.8 -> 1.93, 0.9 -> 1.80).
     current_margin : float
         ``gamma``: design current limit as a fraction of ``imax_a``.
-    robust : RobustSpec or None
-        Plant uncertainty (None: nominal plant only).
+    robust : RobustSpec, Drift or None
+        Plant uncertainty (None: nominal plant only): a :class:`seekopt.design.family.Drift` (drift in
+        physical terms, ranges from the data) or a :class:`RobustSpec` (per-mode box).
+    family : list of ModalPlant
+        Further plants of the drive's family (other temperatures, heads, zones) the design must hold
+        (worst case); ``plant`` is the nominal member.
     slew_a_per_s : float or None
         Feedforward slew-rate limit [A/s].
     reference : {"free", "model", "rigid"}
@@ -143,6 +147,11 @@ class SeekProblem:
         Band of unmodelled modes as fractions of the servo rate (identification does not see modes
         near and above Nyquist); ``hf_gain`` their gain relative to the rigid body, ``hf_tol`` the
         allowed residual per mode as a fraction of the settle band.
+    guard_notch_depth_db : float or None
+        The guard also covers the controller's notches and filter zeros at least this deep
+        (:func:`seekopt.design.guard.controller_notches`; None: not).
+    guard_bands_hz : tuple
+        Further guard bands ``(lo_hz, hi_hz)`` or ``(lo_hz, hi_hz, gain)``.
     check_robust : bool
         Also simulate each design on every plant of the robust set.
     solver : SolverSettings
@@ -155,12 +164,15 @@ class SeekProblem:
     band_margin: float = 0.8
     current_margin: float = 0.97
     robust: RobustSpec | None = None
+    family: list = field(default_factory=list)
     slew_a_per_s: float | None = None
     reference: str = "free"
     tail_s: float = 0.008
     hf_guard: tuple | None = (0.45, 0.65)
     hf_gain: float = 1.0
     hf_tol: float = 0.1
+    guard_notch_depth_db: float | None = 6.0
+    guard_bands_hz: tuple = ()
     check_robust: bool = False
     solver: SolverSettings = field(default_factory=SolverSettings)
 
@@ -175,10 +187,12 @@ class SeekProblem:
             raise ProblemError(f"reference must be 'free', 'model' or 'rigid', not {self.reference!r}")
         if isinstance(self.robust, str):
             self.robust = None if self.robust.lower() == "none" else RobustSpec.from_string(self.robust)
+        self.family = list(self.family or [])
         if self.slew_a_per_s is not None:
             self.slew_a_per_s = _positive("slew", self.slew_a_per_s)
         if self.hf_guard is not None:
             self.hf_guard = tuple(float(f) for f in self.hf_guard)
+        self.guard_bands_hz = tuple(tuple(float(v) for v in b) for b in (self.guard_bands_hz or ()))
         self.tail_s = _positive("tail_s", self.tail_s)
         if isinstance(self.solver, dict):
             self.solver = SolverSettings.from_dict(self.solver)
@@ -189,8 +203,14 @@ class SeekProblem:
         return float(self.controller.sample_rate_hz)
 
     def plants(self) -> list:
-        """The design's plant set: nominal first, then the robust set's vertices."""
-        return self.robust.plants(self.plant) if self.robust else [self.plant]
+        """The design's plant set: nominal first, then the family members and the robust set's vertices
+        (a :class:`~seekopt.design.family.Drift` places the members itself)."""
+        from seekopt.design.family import label_set
+        if self.robust is None:
+            return label_set([self.plant], self.family)
+        if getattr(self.robust, "to_dict", lambda: {})().get("kind") == "drift":
+            return self.robust.plants(self.plant, self.family)
+        return label_set(self.robust.plants(self.plant), self.family)
 
     # ------------------------------------------------------------------ JSON
     def to_dict(self) -> dict:
@@ -198,7 +218,9 @@ class SeekProblem:
         d = {f.name: getattr(self, f.name) for f in fields(self)}
         d["plant"], d["controller"] = self.plant.to_dict(), self.controller.to_dict()
         d["robust"] = self.robust.to_dict() if self.robust else None
+        d["family"] = [p.to_dict() for p in self.family]
         d["hf_guard"] = list(self.hf_guard) if self.hf_guard is not None else None
+        d["guard_bands_hz"] = [list(b) for b in self.guard_bands_hz]
         d["solver"] = self.solver.to_dict()
         return {"schema": 1, **d}
 
@@ -211,7 +233,9 @@ class SeekProblem:
         try:
             d["plant"] = ModalPlant.from_dict(d["plant"], source=f"{source}: plant")
             d["controller"] = Controller.from_json(d["controller"])
-            d["robust"] = RobustSpec.from_dict(d["robust"]) if d.get("robust") else None
+            d["robust"] = _robust_from_dict(d["robust"]) if d.get("robust") else None
+            d["family"] = [ModalPlant.from_dict(p, source=f"{source}: family member {i}")
+                           for i, p in enumerate(d.get("family") or [], 1)]
             d["solver"] = SolverSettings.from_dict(d.get("solver") or {})
             return cls(**d)
         except (KeyError, TypeError) as exc:
@@ -249,6 +273,14 @@ class SeekProblem:
         if fallbacks is not None:
             ss["fallbacks"] = tuple(fallbacks)
         return cls(plant, controller, imax, settle, robust=robust, solver=SolverSettings(**ss), **kw)
+
+
+def _robust_from_dict(d: dict):
+    """A :class:`RobustSpec` or (``"kind": "drift"``) a :class:`seekopt.design.family.Drift`."""
+    if d.get("kind") == "drift":
+        from seekopt.design.family import Drift
+        return Drift.from_dict(d)
+    return RobustSpec.from_dict(d)
 
 
 def check_closed_loop(plant: ModalPlant, controller, margin: float = 1e-9) -> float:

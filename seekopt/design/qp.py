@@ -25,7 +25,7 @@ from seekopt.drive.simulator import closed_loop_responses
 # solver names re-exported for callers of the former combined module
 from seekopt.design.solvers import QP_PLUGINS, ConicQP, IpoptQP, QPSolution, dm, make_qp_solver  # noqa: F401
 
-__all__ = ["LoopMaps", "toeplitz_rows", "hf_guard_matrix", "pes_row_samples", "SeekQP"]
+__all__ = ["LoopMaps", "toeplitz_rows", "hf_guard_matrix", "mode_residual_phasors", "mode_residual_rows", "pes_row_samples", "SeekQP"]
 
 
 def toeplitz_rows(h: np.ndarray, rows: np.ndarray, ncols: int) -> np.ndarray:
@@ -93,18 +93,47 @@ class LoopMaps:
                 self.s_ir[rows].ravel())
 
 
-def hf_guard_matrix(k0: float, fs: float, L: int, nsub: int, f_lo: float, f_hi: float,
-                    gain: float = 1.0, spacing_hz: float | None = None, npoly: int = 4):
-    """Linear map from the sub-step current sequence to the residual vibration of unmodelled
-    modes in ``[f_lo, f_hi]`` [track].
+def mode_residual_phasors(k0: float, fs: float, L: int, nsub: int, freqs_hz, gains=1.0) -> np.ndarray:
+    """Complex map from the sub-step current sequence to the residual vibration of unmodelled modes.
 
     A mode ``k0 g / (s^2 + w^2)`` (undamped: conservative) driven by the ZOH current ``i_m``
     on sub-steps of ``h = 1/(L fs)`` is left vibrating with complex amplitude::
 
         z(w) = k0 g |1 - exp(-j w h)| / w^2 * sum_m i_m exp(-j w m h)        [track]
 
-    Each frequency gives ``npoly`` rows ``Re(exp(j theta) z)`` (theta = 0, pi/npoly, ...): bounding
-    them by ``tol`` bounds ``|z| <= tol / cos(pi / (2 npoly))``.
+    Parameters
+    ----------
+    freqs_hz : array_like
+        Mode frequencies [Hz] (any band: near and above Nyquist, inside controller notches...).
+    gains : float or array_like
+        Mode gain(s) relative to the rigid body, one per frequency or one for all.
+
+    Returns
+    -------
+    E : (nf, nsub) complex ndarray
+        ``z = E @ i`` [track] for sub-step currents ``i`` [A], ``m < nsub``.
+    """
+    h = 1.0 / (L * fs)
+    f = np.atleast_1d(np.asarray(freqs_hz, dtype=float))
+    g = np.broadcast_to(np.asarray(gains, dtype=float), f.shape)
+    w = 2 * np.pi * f
+    wt = k0 * g * np.abs(1 - np.exp(-1j * w * h)) / w ** 2
+    return wt[:, None] * np.exp(-1j * np.outer(w * h, np.arange(int(nsub))))
+
+
+def mode_residual_rows(E: np.ndarray, npoly: int = 4) -> np.ndarray:
+    """Linear rows bounding the complex residuals ``E @ i``: for each frequency ``npoly`` rows
+    ``Re(exp(j theta) z)`` (theta = 0, pi/npoly, ...); bounding them by ``tol`` bounds
+    ``|z| <= tol / cos(pi / (2 npoly))``.  Returns ``(nf * npoly, nsub)`` rows."""
+    th = np.arange(npoly) * np.pi / npoly
+    return (E[:, None, :] * np.exp(1j * th)[None, :, None]).real.reshape(-1, E.shape[1])
+
+
+def hf_guard_matrix(k0: float, fs: float, L: int, nsub: int, f_lo: float, f_hi: float,
+                    gain: float = 1.0, spacing_hz: float | None = None, npoly: int = 4):
+    """Guard rows for unmodelled modes of gain ``gain`` in ``[f_lo, f_hi]`` [Hz] on a grid of
+    ``spacing_hz`` (default ``fs / 64``): :func:`mode_residual_rows` of
+    :func:`mode_residual_phasors` (arbitrary bands: :mod:`seekopt.design.guard`).
 
     Returns
     -------
@@ -112,18 +141,9 @@ def hf_guard_matrix(k0: float, fs: float, L: int, nsub: int, f_lo: float, f_hi: 
         Rows acting on the sub-step currents ``i_m`` [A], ``m < nsub``.
     freqs : (nf,) ndarray
     """
-    h = 1.0 / (L * fs)
     spacing = spacing_hz or fs / 64.0
     freqs = np.arange(f_lo, f_hi + 0.5 * spacing, spacing)
-    m = np.arange(nsub)
-    rows = []
-    for f in freqs:
-        w = 2 * np.pi * f
-        wt = k0 * gain * abs(1 - np.exp(-1j * w * h)) / w ** 2
-        e = wt * np.exp(-1j * w * m * h)
-        for th in np.arange(npoly) * np.pi / npoly:
-            rows.append((e * np.exp(1j * th)).real)
-    return np.array(rows), freqs
+    return mode_residual_rows(mode_residual_phasors(k0, fs, L, nsub, freqs, gain), npoly), freqs
 
 
 # ---------------------------------------------------------------------------- the seek QP
@@ -220,12 +240,14 @@ class SeekQP:
             G = hf[0]
             m = maps[0]
             Tiu, Tir, sir = m.current_rows(Hn, N if self.free_ref else Hn)
+            # the hold current -bias_a has been on since long before the seek: it leaves no residual in
+            # a mode (over the finite horizon it would look like a step and bias the guard)
             if self.free_ref:
                 a0, a1 = cols(imax * G @ Tiu / band, G @ Tir / band)
-                off0, off1 = G @ np.full(len(sir), m.hold_a) / band, G @ sir / band
+                off0, off1 = np.zeros(G.shape[0]), G @ sir / band
             else:
                 a0, a1 = cols(imax * G @ (Tiu[:, :N] + Tir @ Rfull) / band, None)
-                off0, off1 = G @ np.full(Tiu.shape[0], m.hold_a) / band, np.zeros(G.shape[0])
+                off0, off1 = np.zeros(G.shape[0]), np.zeros(G.shape[0])
             A0.append(a0); A1.append(a1); c0.append(off0); c1.append(off1)
             kinds += [("hf", 0, j) for j in range(G.shape[0])]
         M = rigid_endpoint_matrix(N, maps[0].k0, 1.0 / fs)

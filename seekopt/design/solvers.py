@@ -170,7 +170,7 @@ class ConicQP:
                                    "polishing": True}},
                  "proxqp": {"proxqp": {"backend": "dense", "eps_abs": 1e-9}},
                  "qrqp": {"print_iter": False, "print_header": False, "print_info": False},
-                 "daqp": {"daqp": {"iter_limit": 5000}}}
+                 "daqp": {"daqp": {"iter_limit": 5000, "primal_tol": 1e-9}}}
         opts.update(quiet.get(plugin, {}))
         opts.update(options or {})
         sp = {"h": ca.Sparsity.dense(self.n, self.n), "a": ca.Sparsity.dense(self.m, self.n)}

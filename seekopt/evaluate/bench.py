@@ -24,13 +24,16 @@ from seekopt.design.designer import DesignInfeasible, SeekDesigner
 from seekopt.design.metrics import SeekMetrics, evaluate_profile, simulate_profile
 from seekopt.design.problem import SeekProblem
 from seekopt.design.profiles import Profile, t_bang_bang
+from seekopt.design.family import Drift
 from seekopt.design.robust import RobustSpec
 
 __all__ = ["BenchRow", "BenchResult", "baseline_profile", "tuned_baseline", "perturbed_plant", "mode_response",
            "run_bench", "format_table", "plot_bench", "DEFAULT_ROBUST", "TUNE_FACTORS"]
 
-#: Robust variant of the bench: the :class:`~seekopt.design.ocp.RobustSpec` defaults (see its docstring).
-DEFAULT_ROBUST = RobustSpec()
+#: Robust variant of the bench: what ``seekopt design`` does by default, a
+#: :class:`~seekopt.design.family.Drift` with every range from the data (reported std, the family's
+#: spread, seek-induced modes +-5 %).
+DEFAULT_ROBUST = Drift()
 _METRIC_FIELDS = frozenset(f.name for f in fields(SeekMetrics))
 
 
@@ -104,7 +107,7 @@ def mode_response(plant: ModalPlant, mode: Mode, current_a, fs: float) -> np.nda
 def run_bench(plant: ModalPlant, controller, tracks: float, imax: float, settle: float = 0.1, *,
               truth: ModalPlant | None = None, robust=DEFAULT_ROBUST, figures=None,
               designers: dict | None = None, horizon_s: float | None = None, mode_hz: float = 1738.0,
-              tuned: bool = True) -> BenchResult:
+              tuned: bool = True, family=()) -> BenchResult:
     """Sine, windowed sine and optimal profiles for one seek, evaluated on ``truth`` (or ``plant``).
 
     Parameters
@@ -113,8 +116,11 @@ def run_bench(plant: ModalPlant, controller, tracks: float, imax: float, settle:
         Design plant (identified).
     truth : ModalPlant, optional
         Evaluation plant (default: ``plant``).
-    robust : RobustSpec, str or None
-        Uncertainty of the robust optimal variant (default :data:`DEFAULT_ROBUST`; None: nominal only).
+    robust : Drift, RobustSpec, str or None
+        Uncertainty of the robust optimal variant (default :data:`DEFAULT_ROBUST`; a string is read as
+        a ``RobustSpec``; None: nominal only).
+    family : sequence of ModalPlant
+        Further members of the plant family the robust variant holds (``plant`` is the nominal one).
     figures : path, optional
         Folder for the Fig. 9/10-style plot.
     designers : dict, optional
@@ -140,9 +146,10 @@ def run_bench(plant: ModalPlant, controller, tracks: float, imax: float, settle:
             add(f"{kind} tuned", "tuned", prof, time.perf_counter() - t0, note=f"{prof.seek_samples} samples")
     if designers is None:
         designers = {"optimal": SeekDesigner(SeekProblem(plant, controller, imax, settle))}
-        if robust:
+        if robust or family:
             spec = RobustSpec.from_string(robust) if isinstance(robust, str) else robust
-            designers["optimal robust"] = SeekDesigner(SeekProblem(plant, controller, imax, settle, robust=spec))
+            designers["optimal robust"] = SeekDesigner(SeekProblem(plant, controller, imax, settle, robust=spec,
+                                                                   family=list(family)))
     for label, des in designers.items():
         t0 = time.perf_counter()
         try:
@@ -152,7 +159,7 @@ def run_bench(plant: ModalPlant, controller, tracks: float, imax: float, settle:
             rows.append(BenchRow(label, "optimal", failed, note=f"{type(exc).__name__}: {exc}"[:200]))
             continue
         add(label, "optimal", res.profile, time.perf_counter() - t0,
-            note=f"{res.objective}, {res.n_solves} QPs {res.solve_time_s * 1e3:.0f} ms")
+            note=f"{res.objective}, {res.n_solves} QPs {res.solve_time_s * 1e3:.0f} ms; " + _predicted(res))
     for attr, kind in (("ratio_best_baseline", "baseline"), ("ratio_tuned_baseline", "tuned")):
         ref = [r.settle_time_s for r in rows if r.kind == kind]
         if ref:
@@ -163,6 +170,18 @@ def run_bench(plant: ModalPlant, controller, tracks: float, imax: float, settle:
     if figures:
         out.figures.append(plot_bench(out, evalp, controller, Path(figures), mode_hz=mode_hz))
     return out
+
+
+def _predicted(res) -> str:
+    """What ``design`` predicted for a profile (next to what the evaluation plant does in the table)."""
+    ms = res.metrics.settle_time_s * 1e3
+    txt = f"predicted {ms:.3f} ms nominal"
+    if res.prediction is not None:
+        w = res.prediction
+        txt += f", {w.worst_metrics.settle_time_s * 1e3:.3f} ms worst of {len(w.labels)} ('{w.labels[w.worst]}')"
+    if res.guard is not None:
+        txt += f", guard {res.guard.worst_band:.2f} band at {res.guard.worst_hz:.0f} Hz"
+    return txt
 
 
 def format_table(res: BenchResult) -> str:

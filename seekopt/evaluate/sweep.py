@@ -28,7 +28,7 @@ Results folder layout
 ``results.csv``
     The tidy table assembled from ``cells/`` (one row per cell x profile kind).
 ``profiles/``, ``figures/``
-    Optimal profiles as CSV; the sweep figures (:mod:`seekopt.app.report`).
+    Optimal profiles as CSV; the sweep figures (:mod:`seekopt.evaluate.sweep_figures`).
 
 Re-running a sweep into the same folder resumes it: saved cells are read, not
 recomputed; two sweeps running into one folder share the cells (claims).  The grid may change
@@ -190,6 +190,12 @@ class SweepConfig:
         a factory ``f(plant, controller, imax, settle) -> obj`` with ``obj.design(tracks)``.
     kinds : tuple of str
         Subset of :data:`ALL_KINDS` (default :data:`KINDS`).
+    family : list of ModalPlant
+        Further members of the drive's plant family (``plant`` is the nominal one): the optimal
+        designs (``ocp``, ``ocp-robust``) hold every member; the table evaluates on ``plant``.
+    drift : str or None
+        Drift of the ``ocp-robust`` designer in physical terms (:meth:`seekopt.design.family.Drift.from_string`;
+        None: from the data).
     """
 
     plant: ModalPlant
@@ -202,6 +208,8 @@ class SweepConfig:
     kinds: tuple = KINDS
     horizon_s: float | None = None
     scale_controller: bool = True
+    family: list = field(default_factory=list)
+    drift: str | None = None
 
     def __post_init__(self):
         if self.plant.track_pitch_nm is None:
@@ -212,13 +220,27 @@ class SweepConfig:
         if bad:
             raise SweepError(f"unknown profile kind {bad[0]!r} (known: {', '.join(ALL_KINDS)})")
         self.tpis, self.tracks = parse_tpi(",".join(map(repr, self.tpis))), parse_tracks(self.tracks)
+        self.family = list(self.family or [])
+        if any(p.track_pitch_nm is None for p in self.family):
+            raise SweepError("a family member has no track_pitch_nm; a TPI sweep needs the physical gain")
+        if self.drift:
+            from seekopt.design.family import Drift, DriftError
+            try:
+                Drift.from_string(self.drift).check_modes(self.plant)
+            except DriftError as exc:
+                raise SweepError(f"--drift: {exc}") from None
 
     def identity(self) -> dict:
         """Everything but the grid: what saved cells must agree on to be reused."""
-        return {"plant": self.plant.to_dict(), "controller": self.controller.to_dict(),
-                "imax": float(self.imax), "settle": float(self.settle), "designer": self.designer,
-                "kinds": list(self.kinds), "horizon_s": self.horizon_s,
-                "scale_controller": bool(self.scale_controller)}
+        d = {"plant": self.plant.to_dict(), "controller": self.controller.to_dict(),
+             "imax": float(self.imax), "settle": float(self.settle), "designer": self.designer,
+             "kinds": list(self.kinds), "horizon_s": self.horizon_s,
+             "scale_controller": bool(self.scale_controller)}
+        if self.family:              # only when used: sweeps of one plant keep their hash
+            d["family"] = [p.to_dict() for p in self.family]
+        if self.drift:
+            d["drift"] = self.drift
+        return d
 
     def hash(self) -> str:
         import hashlib
@@ -230,6 +252,7 @@ class SweepConfig:
         d = self.identity()
         d.update(tpis=list(self.tpis), tracks=list(self.tracks), config_hash=self.hash(),
                  plant_hash=self.plant.hash(), controller_hash=self.controller.hash(),
+                 **({"family_hashes": [p.hash() for p in self.family]} if self.family else {}),
                  tool_version=__version__, code_hash=code_hash(), schema=1)
         return d
 
@@ -237,7 +260,8 @@ class SweepConfig:
     def from_dict(cls, d: dict) -> "SweepConfig":
         return cls(ModalPlant.from_dict(d["plant"]), Controller.from_json(d["controller"]),
                    d["tpis"], d["tracks"], d["imax"], d["settle"], d["designer"],
-                   tuple(d["kinds"]), d.get("horizon_s"), d.get("scale_controller", True))
+                   tuple(d["kinds"]), d.get("horizon_s"), d.get("scale_controller", True),
+                   [ModalPlant.from_dict(p) for p in d.get("family", [])], d.get("drift"))
 
     def cells(self) -> list[tuple[float, float]]:
         """Cells in submission order: by TPI (designer reuse), longest seeks first (balance)."""
@@ -287,12 +311,17 @@ class BaselineDesigner:
                                objective="shortest_bang_bang", solve_time_s=time.perf_counter() - t0)
 
 
-def _designer_factory(spec: str):
+def _designer_factory(spec: str, family=None, drift: str | None = None):
+    """``f(plant, controller, imax, settle) -> designer``; the built-in ``ocp`` (nominal) and ``ocp-robust``
+    (the default :class:`seekopt.design.family.Drift`, or ``drift``) designs also hold the ``family``
+    members (already at the cell's TPI)."""
     if spec in ("ocp", "ocp-robust"):
-        from seekopt.design.ocp import RobustSpec, SeekDesigner
-        robust = RobustSpec() if spec == "ocp-robust" else None
-        return lambda plant, controller, imax, settle: SeekDesigner(plant, controller, imax, settle=settle,
-                                                                    robust=robust)
+        from seekopt.design.designer import SeekDesigner
+        from seekopt.design.family import Drift
+        from seekopt.design.problem import SeekProblem
+        robust = Drift.from_string(drift) if spec == "ocp-robust" else None
+        return lambda plant, controller, imax, settle: SeekDesigner(SeekProblem(
+            plant, controller, imax, settle, robust=robust, family=list(family or [])))
     if spec == "baseline":
         return BaselineDesigner
     mod, _, attr = spec.partition(":")
@@ -345,7 +374,8 @@ class CellRunner:
             scaled = cfgd.get("scale_controller", True)
             self._held = {"plant0": plant0, "plant": plant0.at_tpi(tpi),
                           "ctrl": controller_at_tpi(ctrl, plant0, tpi) if scaled else ctrl,
-                          "gain": controller_factor(plant0, tpi) if scaled else 1.0, "designer": None}
+                          "gain": controller_factor(plant0, tpi) if scaled else 1.0, "designer": None,
+                          "family": [ModalPlant.from_dict(m).at_tpi(tpi) for m in cfgd.get("family", [])]}
             self._key = key
         return self._held
 
@@ -353,7 +383,7 @@ class CellRunner:
         """The warm designer of ``(configuration, tpi)`` (built on first use)."""
         held = self._objects(cfgd, tpi)
         if held["designer"] is None:
-            held["designer"] = _designer_factory(cfgd["designer"])(
+            held["designer"] = _designer_factory(cfgd["designer"], held["family"], cfgd.get("drift"))(
                 held["plant"], held["ctrl"], float(cfgd["imax"]), float(cfgd["settle"]))
             self.designers_built += 1
         return held["designer"]
@@ -612,7 +642,7 @@ def run_sweep(cfg: SweepConfig, outdir, *, engine: str = "process", workers: int
     summary.table = assemble(outdir, cfg)
     if figures:
         import pandas as pd
-        from seekopt.app.report import plot_sweep
+        from seekopt.evaluate.sweep_figures import plot_sweep
         try:
             summary.figures = plot_sweep(pd.read_csv(summary.table), outdir / "figures")
         except Exception as exc:  # noqa: BLE001 - the table is saved; say so, do not lose the run
