@@ -344,6 +344,67 @@ def test_working_set_option_designs_as_the_full_qp(setup):
     assert wsq.rounds > 0
 
 
+def test_set_predictions_from_the_simulators_responses_equal_the_simulator(setup):
+    """predict_on_set(maps=...) plays linear plants by superposing the one simulator's impulse
+    responses: the same settle times and peak currents as simulate_2dof on every plant; the guard
+    report from those currents equals the simulated one."""
+    from seekopt.design import guard as gmod
+    from seekopt.design.predict import play_linear, predict_on_set, superposes
+    truth, ctrl, design = setup
+    des = SeekDesigner(SeekProblem(design.copy(bias_a=0.01), ctrl, IMAX, robust="n=3"))
+    res = des.design(150.0)
+    prof = res.profile
+    n = prof.n + int(round(0.015 * ctrl.sample_rate_hz))
+    maps = des._loop_maps(n)
+    assert all(superposes(p) for p in des.plants)
+    fast = predict_on_set(des.plants, ctrl, prof, des.settle, design.k0, maps=maps)
+    slow = predict_on_set(des.plants, ctrl, prof, des.settle, design.k0)
+    for a, b in zip(fast.metrics, slow.metrics):
+        assert a.settle_time_s == b.settle_time_s
+        assert a.peak_current_a == pytest.approx(b.peak_current_a, rel=1e-9)
+        assert a.peak_pes_after_track == pytest.approx(b.peak_pes_after_track, rel=1e-7, abs=1e-12)
+    _, cur = play_linear(maps[0], prof, n)
+    g1 = gmod.guard_report(des.plant, ctrl, prof, des.guard_bands, des.settle, curve=des.guard_curve)
+    g2 = gmod.guard_report(des.plant, ctrl, prof, des.guard_bands, des.settle, curve=des.guard_curve,
+                           current_sub=cur)
+    assert g2.worst_band == pytest.approx(g1.worst_band, rel=1e-7)
+    assert play_linear(maps[0], prof, maps[0].horizon + 1) is None
+
+
+def test_farkas_check_and_zero_copy_solve():
+    """proves_infeasible accepts a true certificate and rejects others; the numpy (buffer) path of
+    ConicQP answers as the casadi.DM path."""
+    A = np.array([[1.0, 1.0], [1.0, 1.0]])
+    lba, uba = np.array([2.0, -np.inf]), np.array([np.inf, 1.0])
+    lbx, ubx = -10 * np.ones(2), 10 * np.ones(2)
+    assert solvmod.proves_infeasible(A, lba, uba, lbx, ubx, [-1.0, 1.0])
+    assert not solvmod.proves_infeasible(A, lba, uba, lbx, ubx, [1.0, -1.0])
+    assert not solvmod.proves_infeasible(A, lba, np.array([np.inf, 3.0]), lbx, ubx, [-1.0, 1.0])
+    rng = np.random.default_rng(1)
+    M = rng.standard_normal((6, 6)); H = M @ M.T + np.eye(6)
+    g, B = rng.standard_normal(6), rng.standard_normal((5, 6))
+    q = solvmod.ConicQP(6, 5, "daqp")
+    a = q.solve(H, g, B, -np.ones(5), np.ones(5), -np.ones(6), np.ones(6))
+    b = q.solve(solvmod.dm(H), g, solvmod.dm(B), -np.ones(5), np.ones(5), -np.ones(6), np.ones(6))
+    assert a.outcome is b.outcome is solvmod.QPStatus.OPTIMAL
+    assert np.allclose(a.x, b.x, atol=1e-9)
+    bad = q.solve(H, g, B, np.full(5, 2.0), np.full(5, 3.0) * 0 + 1.0, -np.ones(6), np.ones(6))
+    assert bad.outcome is not solvmod.QPStatus.OPTIMAL
+
+
+def test_neighbouring_lengths_start_from_the_predicted_length(setup):
+    """A sweep's next length starts from the settle/T_bb ratio of its neighbour and designs the same
+    length as a fresh designer (class scan and bisection)."""
+    truth, ctrl, design = setup
+    warm = SeekDesigner(SeekProblem(design, ctrl, IMAX))
+    warm.design(100.0)
+    assert warm._predict(int(math.ceil(t_bang_bang(120.0, design.k0, IMAX) * ctrl.sample_rate_hz))) is not None
+    a = warm.design(120.0)
+    b = SeekDesigner(SeekProblem(design, ctrl, IMAX)).design(120.0)
+    assert a.settle_samples == b.settle_samples
+    assert a.n_solves <= b.n_solves + 2
+
+
 # ------------------------------------------------------------------------- early errors
 def test_impossible_seeks_rejected_before_any_qp(setup):
     truth, ctrl, design = setup

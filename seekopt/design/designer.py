@@ -41,9 +41,10 @@ from threadpoolctl import threadpool_limits
 from identification.model.plant import ModalPlant
 
 from seekopt.design import guard as _guard, qp as _qp
-from seekopt.design.predict import SetPrediction, predict_on_set, scale_feedforward_maps
+from seekopt.design.predict import (SetPrediction, play_linear, predict_on_set, scale_feedforward_maps,
+                                    superposes)
 from seekopt.design.guard import GuardReport
-from seekopt.design.metrics import SeekMetrics, evaluate_profile, worst_case
+from seekopt.design.metrics import DEFAULT_TAIL_S, SeekMetrics, evaluate_profile, worst_case
 from seekopt.design.problem import ProblemError, SeekProblem, check_closed_loop
 from seekopt.design.profiles import Profile, finish_profile, reference_from_model, rigid_endpoint_matrix, t_bang_bang
 from seekopt.design.solvers import QPStatus, SolverChain
@@ -162,6 +163,8 @@ class SeekDesigner:
         self._maps, self._maps_h = None, 0
         self._qps: dict = {}
         self._ws: dict = {}             # working-set solver per structure
+        self._history: dict = {}        # n_rigid -> designed settle samples (predicts the next length)
+        self.check_tail = int(round(DEFAULT_TAIL_S * self.fs)) + 2   # samples the simulator check adds
         self.builds, self.map_builds = 0, 0
         self.solver_builds: Counter = Counter()
 
@@ -175,6 +178,7 @@ class SeekDesigner:
             h = max(horizon, 2 * self._maps_h)
             # a plant of the set whose gain differs plays the profile through its drive's gain calibration
             self._maps = [scale_feedforward_maps(_qp.LoopMaps(p, self.controller, h), p) for p in self.plants]
+            self._maps_plants = list(self.plants)
             self._maps_h = h
             self.map_builds += 1
         return self._maps
@@ -186,7 +190,7 @@ class SeekDesigner:
         key = (nmax, epigraph)
         if key not in self._qps:
             H = nmax + self.tail
-            maps = self._loop_maps(H)
+            maps = self._loop_maps(nmax + max(self.tail, self.check_tail))   # long enough for the checks too
             R = None
             if self.reference != "free":
                 imp = np.zeros(H); imp[0] = 1.0
@@ -236,7 +240,7 @@ class SeekDesigner:
         if self.settings.working_set:
             sol = self._working_set(qp).solve(*args, x0=warm, check=check)
         else:
-            sol = qp.solver.solve(*qp.data(*args), x0=warm, check=check)
+            sol = qp.solver.solve(*qp.numeric(*args), x0=warm, check=check)
         stats.add(n, sol)
         return sol
 
@@ -336,6 +340,10 @@ class SeekDesigner:
         # long seeks settle no sooner than 1.25 T_bb (measured 1.37-1.58 for K = 1000-10000): skip the
         # hopeless big classes below that (lo stays at T_bb, so the bisection still covers them)
         first = max(n_rigid, 1) if n_rigid <= self.thin_above else int(math.ceil(1.25 * n_rigid))
+        found = self._predicted_search(K, n_rigid, first, lo, stats)
+        if found is not None:
+            qp, c, hi, best = found
+            return self._verify(qp, c, hi, best, K, stats, n_rigid)
         for c in self._classes(first):
             qp = self._structure(c, False)
             sol = self._solve(qp, K, c, self.beta, stats)
@@ -350,7 +358,11 @@ class SeekDesigner:
             tbb = t_bang_bang(K, self.plant.k0, self.imax)
             raise DesignInfeasible(f"seek of {K:g} tracks cannot settle within {self.max_samples} samples "
                                    f"at Imax {self.imax:g} A (T_bb = {tbb * 1e3:.4g} ms)")
-        hi, best = c, sol
+        hi, best = self._bisect(qp, K, lo, c, sol, stats)
+        return self._verify(qp, c, hi, best, K, stats, n_rigid)
+
+    def _bisect(self, qp, K, lo, hi, best, stats):
+        """Fewest feasible seek samples in ``(lo, hi]`` (``hi`` feasible with answer ``best``)."""
         while hi - lo > 1:
             mid = (lo + hi) // 2
             s = self._solve(qp, K, mid, self.beta, stats, warm=best.x)
@@ -358,16 +370,84 @@ class SeekDesigner:
                 hi, best = mid, s
             else:           # infeasible, or undecided: either way not a design at ``mid``
                 lo = mid
-        # verify by simulation; step up on failure (tail beyond the QP horizon, row thinning)
+        return hi, best
+
+    def _predict(self, n_rigid: int) -> int | None:
+        """Settle samples predicted for a seek whose rigid bang-bang takes ``n_rigid`` samples: the
+        designed settle/T_bb ratio of the nearest earlier design (a sweep's neighbouring length, within a
+        factor 1.5 of ``n_rigid``), interpolated between the two nearest when they bracket it; None
+        when there is none."""
+        near = [k for k in self._history if 2 / 3 <= max(k, 1) / max(n_rigid, 1) <= 1.5]
+        if not near:            # no neighbouring length designed yet: the class scan is cheaper than a bad guess
+            return None
+        keys = sorted(near)
+        below = [k for k in keys if k <= n_rigid]
+        above = [k for k in keys if k >= n_rigid]
+        if below and above and below[-1] != above[0]:
+            a, b = below[-1], above[0]
+            ra, rb = self._history[a] / max(a, 1), self._history[b] / max(b, 1)
+            ratio = ra + (rb - ra) * (n_rigid - a) / (b - a)
+        else:
+            k = min(keys, key=lambda k: abs(math.log(max(k, 1) / max(n_rigid, 1))))
+            ratio = self._history[k] / max(k, 1)
+        return max(int(round(ratio * max(n_rigid, 1))), 1)
+
+    def _predicted_search(self, K, n_rigid, first, lo, stats):
+        """Search from the predicted length (:meth:`_predict`): in the size class the old scan would end
+        in, probe the predicted length and its neighbour, gallop (steps 1, 2, 4, ...) towards the
+        boundary, then bisect.  Returns ``(qp, class, N, answer)`` or None (no prediction, or the
+        class holds no feasible length: the class scan decides)."""
+        n_pred = self._predict(n_rigid)
+        if n_pred is None:
+            return None
+        classes = self._classes(first)
+        c = next((x for x in classes if x >= n_pred), classes[-1])
+        while True:
+            qp = self._structure(c, False)
+            lo_c, n0 = lo, min(max(n_pred, lo + 1), c)
+            s = self._solve(qp, K, n0, self.beta, stats)
+            if s.success:
+                hi, best, step = n0, s, 1
+                while hi - step > lo_c:
+                    m = hi - step
+                    t = self._solve(qp, K, m, self.beta, stats, warm=best.x)
+                    if not t.success:
+                        lo_c = m
+                        break
+                    hi, best, step = m, t, 2 * step
+            else:
+                lo_c, step, hi, best = n0, 1, None, None
+                while hi is None:
+                    m = min(lo_c + step, c)
+                    t = self._solve(qp, K, m, self.beta, stats)
+                    if t.success:
+                        hi, best = m, t
+                    elif m == c:
+                        return None     # nothing in this class: the class scan goes on from here
+                    else:
+                        lo_c, step = m, 2 * step
+            hi, best = self._bisect(qp, K, lo_c, hi, best, stats)
+            # the scan takes the first class whose longest seek is feasible: a smaller class that holds
+            # this length is that class (re-searched there, from this length)
+            prev = [x for x in classes if x < c]
+            if prev and hi <= prev[-1] and prev[-1] >= first:
+                c, n_pred = prev[-1], hi
+                continue
+            return qp, c, hi, best
+
+    def _verify(self, qp, c, hi, best, K, stats, n_rigid):
+        """Verify by simulation; step up on failure (tail beyond the QP horizon, row thinning)."""
         for N in range(hi, c + 1):
             if N != hi:
                 best = self._solve(qp, K, N, self.beta, stats, warm=best.x)
                 if not best.success:
                     continue
             try:
-                return self._finish(qp, best, K, N, stats, f"min_settle/{self.objective_kind}", strict=True)
+                res = self._finish(qp, best, K, N, stats, f"min_settle/{self.objective_kind}", strict=True)
             except DesignError:
                 continue
+            self._history[max(n_rigid, 1)] = N
+            return res
         raise DesignError(f"no design for {K:g} tracks passed the simulator check up to {c} samples")
 
     # ------------------------------------------------------------------ verification
@@ -404,15 +484,20 @@ class SeekDesigner:
         if strict and not metrics.settle_time_s * self.fs <= N + 1 + 1e-9:
             raise DesignError(f"design does not settle by sample {N} in simulation")
         worst, pred = None, None
-        if len(self.plants) > 1:        # honest predictions: every plant of the set, by the one simulator
-            pred = predict_on_set(self.plants, self.controller, prof, self.settle, self.plant.k0, first=metrics)
+        n_play = max(prof.n + int(round(DEFAULT_TAIL_S * self.fs)), prof.n + 1)
+        maps = self._loop_maps(n_play) if self._maps is not None else None
+        if len(self.plants) > 1:        # honest predictions: every plant of the set, by the one simulator's
+            # responses (plants whose loop superposes) or the simulator itself
+            pred = predict_on_set(self.plants, self.controller, prof, self.settle, self.plant.k0, first=metrics,
+                                  maps=maps)
             prof.meta.update(pred.to_meta())
             if self.check_robust:
                 worst = worst_case(pred.metrics)
         guard = None
         if self.guard_bands:
+            played = play_linear(maps[0], prof, n_play) if maps is not None and superposes(self.plant) else None
             guard = _guard.guard_report(self.plant, self.controller, prof, self.guard_bands, self.settle,
-                                        curve=self.guard_curve)
+                                        curve=self.guard_curve, current_sub=None if played is None else played[1])
             prof.meta.update(guard.to_meta())
         prof.meta["design_status"] = "verified"
         return DesignResult(prof, metrics, "verified", stats.t, sol.solver or self.solver_name, objective,

@@ -337,17 +337,22 @@ class GuardReport:
 
 
 def guard_report(plant, controller, profile, bands: list, settle: float | None = None,
-                 spacing_hz: float = 25.0, horizon_s: float | None = None, curve=None) -> GuardReport:
+                 spacing_hz: float = 25.0, horizon_s: float | None = None, curve=None,
+                 current_sub=None) -> GuardReport:
     """Play ``profile`` on ``plant`` (:func:`seekopt.design.metrics.simulate_profile`, sub-steps
-    recorded) and measure the residual of the guarded modes left by the total current."""
+    recorded) and measure the residual of the guarded modes left by the total current.
+    ``current_sub``: the ``(n, L)`` total sub-step currents [A] of that play when already at hand
+    (e.g. :func:`seekopt.design.predict.play_linear`)."""
     from seekopt.design.metrics import DEFAULT_TAIL_S
     from seekopt.drive.simulator import simulate_2dof
     band = float(settle or profile.settle_track)
     fs, L = float(controller.sample_rate_hz), int(controller.fast_multiple)
-    n = profile.n + int(round(DEFAULT_TAIL_S * fs)) if horizon_s is None else int(round(horizon_s * fs))
-    u, r = profile.padded(max(n, profile.n + 1))
-    sim = simulate_2dof(plant, controller, u - plant.bias_a, r, position0=0.0, record_substeps=True)
-    i_sub = (sim.current_sub_a + plant.bias_a).ravel()       # the seek's current (steady hold removed)
+    if current_sub is None:
+        n = profile.n + int(round(DEFAULT_TAIL_S * fs)) if horizon_s is None else int(round(horizon_s * fs))
+        u, r = profile.padded(max(n, profile.n + 1))
+        current_sub = simulate_2dof(plant, controller, u - plant.bias_a, r, position0=0.0,
+                                    record_substeps=True).current_sub_a
+    i_sub = (np.asarray(current_sub) + plant.bias_a).ravel()       # the seek's current (steady hold removed)
     per, worst = [], (0.0, float("nan"), "")
     for b in bands:
         f, g = guard_grid([b], spacing_hz, curve=curve)

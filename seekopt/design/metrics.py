@@ -28,7 +28,7 @@ from identification.model.plant import ModalPlant
 from seekopt.design.profiles import Profile, t_bang_bang
 from seekopt.drive.simulator import Disturbances, SimResult, simulate_2dof
 
-__all__ = ["SeekMetrics", "settle_time", "settle_index", "evaluate_profile", "simulate_profile",
+__all__ = ["SeekMetrics", "settle_time", "settle_index", "evaluate_profile", "simulate_profile", "seek_metrics",
            "worst_case", "DEFAULT_TAIL_S"]
 
 #: Default simulated time after the end of the profile [s].
@@ -131,18 +131,24 @@ def evaluate_profile(plant: ModalPlant, controller, profile: Profile, *, settle:
         Rigid-body gain for ``T_bb`` (default ``plant.k0``).
     """
     res = simulate_profile(plant, controller, profile, horizon_s=horizon_s, disturbances=disturbances)
-    fs = float(controller.sample_rate_hz)
-    pes = res.true_position_track - profile.tracks
+    return seek_metrics(res.true_position_track - profile.tracks, res.peak_current_a, profile,
+                        float(controller.sample_rate_hz), settle, k0_for_tbb or plant.k0)
+
+
+def seek_metrics(pes, peak_current_a: float, profile: Profile, fs: float, settle: float, k0: float) -> SeekMetrics:
+    """:class:`SeekMetrics` of a played profile from its PES [track] and peak total current [A]
+    (``k0`` for ``T_bb``); :func:`evaluate_profile` measures both with the one simulator."""
+    pes = np.asarray(pes, dtype=float)
     ts = settle_time(pes, fs, settle)
     after = pes[min(profile.seek_samples, len(pes) - 1):]
     finite = np.all(np.isfinite(after))
-    tbb = t_bang_bang(profile.tracks, k0_for_tbb or plant.k0, profile.imax_a)
+    tbb = t_bang_bang(profile.tracks, k0, profile.imax_a)
     return SeekMetrics(
         seek_time_s=profile.seek_time_s,
         settle_time_s=ts,
         peak_pes_after_track=float(np.max(np.abs(after))) if finite else math.inf,
         rms_pes_after_track=float(np.sqrt(np.mean(after ** 2))) if finite else math.inf,
-        peak_current_a=float(res.peak_current_a) if math.isfinite(res.peak_current_a) else math.inf,
+        peak_current_a=float(peak_current_a) if math.isfinite(peak_current_a) else math.inf,
         ratio_tbb=ts / tbb if tbb > 0 else math.inf,
         settled=bool(math.isfinite(ts)))
 

@@ -16,7 +16,7 @@ import numpy as np
 from identification.model.plant import ModalPlant
 
 __all__ = ["set_label", "feedforward_scale", "calibrated", "played_on", "scale_feedforward_maps", "SetPrediction",
-           "predict_on_set"]
+           "predict_on_set", "superposes", "play_linear"]
 
 
 def set_label(plant: ModalPlant) -> str:
@@ -103,15 +103,58 @@ class SetPrediction:
                 "robust_set_size": len(self.labels)}
 
 
+def superposes(plant: ModalPlant) -> bool:
+    """True when the closed loop of ``plant`` played from its pre-seek steady state is exactly its
+    linear part's (:meth:`ModalPlant.linear_part`): structural effects only (the bias is cancelled by
+    the hold current; a pivot's rest offset is not)."""
+    if not plant.is_linear:
+        return False
+    return all(float(getattr(e, "rest_track", 0.0) or 0.0) == 0.0 for e in plant.effects)
+
+
+def play_linear(maps, profile, n: int):
+    """``(pes [track], total sub-step currents (n, L) [A])`` of ``profile`` played for ``n`` samples from
+    rest on the loop whose impulse responses are ``maps`` (:class:`seekopt.design.qp.LoopMaps`, from the
+    one simulator, feedforward scaled by the plant's calibration), or None when ``n`` exceeds the maps'
+    horizon.  Superposition of the simulator's own responses (the loop is linear time-invariant)::
+
+        y = h_yu * u_ff + h_yr * (r - K) + K s_yr,    i = h_iu * u_ff + h_ir * (r - K) + K s_ir + i_hold
+    """
+    if n > maps.horizon:
+        return None
+    K = float(profile.tracks)
+    u = np.asarray(profile.current_a, dtype=float)
+    dr = np.asarray(profile.reference_track, dtype=float) - K
+    m = min(len(u), n)
+    y = np.convolve(u[:m], maps.y_u[:n])[:n] + np.convolve(dr[:m], maps.y_r[:n])[:n] + K * maps.s_yr[:n]
+    cur = np.empty((n, maps.L))
+    for l in range(maps.L):
+        cur[:, l] = (np.convolve(u[:m], maps.i_u[:n, l])[:n] + np.convolve(dr[:m], maps.i_r[:n, l])[:n]
+                     + K * maps.s_ir[:n, l] + maps.hold_a)
+    return y - K, cur
+
+
 def predict_on_set(plants: list, controller, profile, settle: float, k0_for_tbb: float | None = None,
-                   first=None) -> SetPrediction:
+                   first=None, maps=None) -> SetPrediction:
     """Play ``profile`` on every plant of ``plants`` (:func:`seekopt.design.metrics.evaluate_profile`, the
     current scaled by each plant's feedforward calibration, :func:`played_on`); ``first`` reuses the
-    metrics already measured on ``plants[0]``."""
-    from seekopt.design.metrics import evaluate_profile
-    ms = [first if (i == 0 and first is not None) else
-          evaluate_profile(p, controller, played_on(profile, p), settle=settle, k0_for_tbb=k0_for_tbb)
-          for i, p in enumerate(plants)]
+    metrics already measured on ``plants[0]``.  ``maps`` (one :class:`seekopt.design.qp.LoopMaps` per
+    plant, long enough): a plant whose loop superposes (:func:`superposes`) is played by
+    :func:`play_linear` on its maps (the same traces as the simulator, without the per-sample loop)."""
+    from seekopt.design.metrics import DEFAULT_TAIL_S, evaluate_profile, seek_metrics
+    fs = float(controller.sample_rate_hz)
+    n = max(profile.n + int(round(DEFAULT_TAIL_S * fs)), profile.n + 1)
+
+    def one(i, p):
+        if i == 0 and first is not None:
+            return first
+        if maps is not None and superposes(p):
+            played = play_linear(maps[i], profile, n)
+            if played is not None:
+                pes, cur = played
+                return seek_metrics(pes, float(np.max(np.abs(cur))), profile, fs, settle, k0_for_tbb or p.k0)
+        return evaluate_profile(p, controller, played_on(profile, p), settle=settle, k0_for_tbb=k0_for_tbb)
+    ms = [one(i, p) for i, p in enumerate(plants)]
     worst = max(range(len(ms)), key=lambda i: (ms[i].settle_time_s, ms[i].peak_pes_after_track))
     binding = max(range(len(ms)), key=lambda i: ms[i].peak_pes_after_track)
     return SetPrediction([set_label(p) for p in plants], ms, worst, binding)

@@ -184,8 +184,8 @@ class SeekQP:
     * optional slew ``|u_ff(k) - u_ff(k-1)| <= slew / fs``.
 
     Objective: ``rho |D v|^2 + rho_q |D q|^2 + w_e mean_i,k>=nmax e^2 (+ w_t t^2)``.
-    ``H``, ``A0``, ``A1`` are converted to :class:`casadi.DM` once, here; the solver is built
-    once, here.
+    The solver of the full QP is built on first use; :meth:`numeric` gives its data as numpy arrays
+    (read by the solvers through zero-copy buffers), :meth:`data` as :class:`casadi.DM`.
     """
 
     def __init__(self, maps: list, nmax: int, horizon: int, imax: float, band: float, fs: float,
@@ -301,8 +301,18 @@ class SeekQP:
         self._P0, self._P1, self._P2 = P + w * E0.T @ E0, w * (E0.T @ E1 + E1.T @ E0), w * E1.T @ E1
         self._q1, self._q2 = w * E0.T @ e1, w * E1.T @ e1   # g = K q1 + K|K| q2
         self._dm_cache = None      # casadi copies of the full matrices, made on first full solve
-        self.solver = solver(n, self.m)
+        self._make_solver, self._solver = solver, None
+        # row masks of bounds() (computed once)
+        self._pes = np.isin(self.kind, ("pes", "pes_hi", "pes_lo")) & np.isin(self.plant_idx, list(self.band_plants))
+        self._masks = {k: self.kind == k for k in ("pes_hi", "pes_lo", "cur", "hf", "rigid", "slew")}
         self.build_time_s = time.perf_counter() - t_build
+
+    @property
+    def solver(self):
+        """The full-size solver chain (built on first use: the working set rarely needs it)."""
+        if self._solver is None:
+            self._solver = self._make_solver(self.n, self.m)
+        return self._solver
 
     @property
     def _dm(self) -> dict:
@@ -326,9 +336,21 @@ class SeekQP:
         return H, g, A, lba, uba, lbx, ubx
 
     def matrices(self, K: float):
-        """``(H, A)`` of a seek of ``K`` tracks as numpy arrays (for reduced problems)."""
+        """``(H, A)`` of a seek of ``K`` tracks as numpy arrays (the last ``K``'s are kept: a bisection
+        solves many lengths of one seek).  Solvers read them through zero-copy buffers
+        (:meth:`seekopt.design.solvers.ConicQP.solve`)."""
         aK = abs(K)
-        return self._P0 + aK * self._P1 + aK * aK * self._P2, self.A0 + aK * self.A1
+        if getattr(self, "_mat_K", None) != aK:
+            self._mat = (self._P0 + aK * self._P1 + aK * aK * self._P2, self.A0 + aK * self.A1)
+            self._mat_K = aK
+        return self._mat
+
+    def numeric(self, K: float, nseek: int, beta: float | None, gamma: float, hf_tol: float | None,
+                slew_a_per_s: float | None = None):
+        """:meth:`data` as numpy arrays ``(H, g, A, lba, uba, lbx, ubx)`` (no casadi copies)."""
+        H, A = self.matrices(K)
+        g, lba, uba, lbx, ubx = self.bounds(K, nseek, beta, gamma, hf_tol, slew_a_per_s)
+        return H, g, A, lba, uba, lbx, ubx
 
     def bounds(self, K: float, nseek: int, beta: float | None, gamma: float, hf_tol: float | None,
                slew_a_per_s: float | None = None):
@@ -340,22 +362,22 @@ class SeekQP:
         g = K * self._q1 + K * aK * self._q2
         c = self.c0 + K * self.c1
         lba = np.full(self.m, -np.inf); uba = np.full(self.m, np.inf)
-        kind, smp, pl = self.kind, self.sample, self.plant_idx
-        active = np.isin(kind, ("pes", "pes_hi", "pes_lo")) & (smp >= nseek) & np.isin(pl, list(self.band_plants))
+        mk = self._masks
+        active = self._pes & (self.sample >= nseek)
         if self.epigraph:
-            hi, lo = active & (kind == "pes_hi"), active & (kind == "pes_lo")
+            hi, lo = active & mk["pes_hi"], active & mk["pes_lo"]
             uba[hi] = -c[hi]; lba[lo] = -c[lo]
         elif beta is not None:
             lba[active] = -beta - c[active]; uba[active] = beta - c[active]
-        cur = kind == "cur"
+        cur = mk["cur"]
         lba[cur] = -gamma - c[cur]; uba[cur] = gamma - c[cur]
         if hf_tol is not None:
-            hfm = kind == "hf"
+            hfm = mk["hf"]
             lba[hfm] = -hf_tol - c[hfm]; uba[hfm] = hf_tol - c[hfm]
-        rig = kind == "rigid"
+        rig = mk["rigid"]
         lba[rig] = uba[rig] = np.array([K / self.s_pos, 0.0])
         if self.slew is not None and slew_a_per_s is not None:
-            sl = kind == "slew"
+            sl = mk["slew"]
             lim = slew_a_per_s / (self.fs * self.imax)
             lba[sl] = -lim; uba[sl] = lim
         lbx = np.zeros(n); ubx = np.zeros(n)

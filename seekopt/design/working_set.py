@@ -1,30 +1,39 @@
-"""Solve a seek QP on a working set of its rows, adding back every row the answer violates.
+"""Solve a seek QP on its free variables and a working set of its rows, adding back every row the
+answer violates.
 
-Most rows of a seek QP never bind: settle-band rows before the settle sample are free, and of the
-band and current rows of 22 robust-set plants only a few dozen touch their limits at the optimum.
-:class:`WorkingSetQP` solves the QP of one :class:`seekopt.design.qp.SeekQP` structure with
+Most of a seek QP never binds: variables past the seek (``u_ff``, ``r`` for ``k >= N``) are pinned
+to zero, settle-band rows before the seek ends are free, and of the band and current rows of 22
+robust-set plants only a few dozen touch their limits at the optimum.  :class:`WorkingSetQP` solves
+the QP of one :class:`seekopt.design.qp.SeekQP` structure with
 
-* the **free rows dropped** (both bounds infinite: band rows before the seek ends);
+* the **fixed variables out** (``lbx = ubx``: the samples past the seek);
+* the **free rows dropped** (both bounds infinite);
 * the **other rows screened**: the working set starts from the equality rows, the rows that bound
   the last answer of this structure (the bisection's previous length, or the previous seek length
-  of a sweep) and the rows within ``screen_margin`` of their bound at the warm start; the reduced QP
-  is solved, every row the answer violates (by more than ``add_tol`` in the row's scaled units) is
-  added back, and the QP re-solved, until the answer satisfies every row.
+  of a sweep: the warm start of the active set) and the rows the warm start ``x0`` violates or comes
+  within ``screen_margin`` of; the reduced QP is solved, every row the answer violates (by more than
+  ``add_tol`` in the row's scaled units) is added back, and the QP re-solved, until the answer
+  satisfies every row.
 
-The answer is then the full QP's optimum (a convex QP's optimum that satisfies the dropped rows is
-optimal for the full problem); a reduced QP proven infeasible proves the full QP infeasible (fewer
-rows) in exact arithmetic, but daqp has reported infeasibility (-1) on reduced QPs that qpOASES and
-HiGHS solve, so a reduced "infeasible" is confirmed on the full QP (the primary's trust level before
-the working set).  Reduced
-problems are padded to a few row buckets (powers of two) so that each bucket's solver chain is built
-once and reused.  When the working set grows past ``max_fraction`` of the
-rows, or a reduced solve ends without an answer or proof, the full QP is solved as before.
+An answer that satisfies every dropped row is the full QP's optimum (a convex QP's optimum that
+satisfies the dropped rows is optimal with them).  A reduced QP without a solution proves the full
+QP has none (it has fewer rows) -- but only a *verified* proof counts: the primary's row multipliers
+must pass the Farkas check :func:`seekopt.design.solvers.proves_infeasible` (daqp has reported -1 on
+reduced QPs that qpOASES and HiGHS solve; its multipliers then fail the check).  An unverified
+"infeasible" goes to the fallback solvers on the same reduced QP (their "infeasible" is their proof, as
+for the full QP), and when they answer, the rounds go on from their answer.
+
+Reduced problems are solved through casadi's zero-copy buffers on numpy data
+(:meth:`seekopt.design.solvers.ConicQP.solve`), one solver chain per (free variables, row bucket);
+row counts are padded to a few buckets (powers of two).  When the working set grows past
+``max_fraction`` of the rows, or a reduced solve ends without an answer or a proof, the full QP is
+solved as without the working set.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from seekopt.design.solvers import QPSolution, QPStatus, SolverChain, dm
+from seekopt.design.solvers import QPSolution, QPStatus, SolverChain, proves_infeasible
 
 __all__ = ["WorkingSetQP"]
 
@@ -36,7 +45,7 @@ class WorkingSetQP:
     ----------
     qp : SeekQP
     chain : callable
-        ``(n, m) -> SolverChain`` for a reduced problem of ``m`` rows.
+        ``(n, m) -> SolverChain`` for a reduced problem of ``n`` variables and ``m`` rows.
     screen_margin : float
         Rows within this distance of a bound at the warm start join the first working set [row units:
         bands for band rows, ``Imax`` for current rows].
@@ -47,33 +56,37 @@ class WorkingSetQP:
         Working sets larger than this fraction of the rows go to the full QP.
     max_add : float
         At most ``max_add * n`` violated rows (the most violated) join per round.
+    near : float
+        With the violated rows, rows within ``near`` of their bound join too (fewer rounds).
     """
 
-    def __init__(self, qp, chain, *, screen_margin: float = 0.0, add_tol: float = 1e-7, max_rounds: int = 30,
-                 max_fraction: float = 0.5, max_add: float = 1.0):
+    def __init__(self, qp, chain, *, screen_margin: float = 0.02, add_tol: float = 1e-7, max_rounds: int = 40,
+                 max_fraction: float = 0.5, max_add: float = 1.0, near: float = 0.02):
         self.qp, self._make_chain = qp, chain
-        self.screen_margin, self.add_tol = float(screen_margin), float(add_tol)
+        self.screen_margin, self.add_tol, self.near = float(screen_margin), float(add_tol), float(near)
         self.max_rounds, self.max_fraction, self.max_add = int(max_rounds), float(max_fraction), float(max_add)
         self._chains: dict = {}
         self._hint = np.zeros(0, dtype=int)      # rows that bound the last answer
-        self._K, self._H, self._Hdm, self._A = None, None, None, None
+        self._K, self._H, self._A = None, None, None
         self.rounds = 0                          # reduced solves (statistics)
         self.full_solves = 0
-        self.confirmations = 0                   # reduced 'infeasible' re-solved on the full QP
+        self.proofs = 0                          # reduced 'infeasible' with a verified certificate
+        self.second_opinions = 0                 # reduced 'infeasible' without one: fallbacks asked
 
-    def _chain(self, m: int) -> SolverChain:
-        bucket = 64
+    def _chain(self, n: int, m: int) -> SolverChain:
+        bucket = 32
         while bucket < m:
             bucket *= 2
-        if bucket not in self._chains:
-            self._chains[bucket] = self._make_chain(self.qp.n, bucket)
-        return self._chains[bucket]
+        key = (n, bucket)
+        if key not in self._chains:
+            self._chains[key] = self._make_chain(n, bucket)
+        return self._chains[key]
 
     def _matrices(self, K: float):
         if self._K != K:
             self._H, self._A = self.qp.matrices(K)
-            self._Hdm, self._K = dm(self._H), K
-        return self._Hdm, self._A
+            self._K = K
+        return self._H, self._A
 
     def solve(self, K: float, nseek: int, beta, gamma: float, hf_tol, slew_a_per_s=None, x0=None,
               check=None) -> QPSolution:
@@ -81,67 +94,110 @@ class WorkingSetQP:
         (full-problem re-check, returns a note or '') as in :meth:`SolverChain.solve`."""
         qp = self.qp
         g, lba, uba, lbx, ubx = qp.bounds(K, nseek, beta, gamma, hf_tol, slew_a_per_s)
-        Hdm, A = self._matrices(K)
+        H, A = self._matrices(K)
+        fv = np.flatnonzero(lbx < ubx)                          # free variables
+        xfix = np.where(lbx == ubx, lbx, 0.0)
         cand = np.flatnonzero(np.isfinite(lba) | np.isfinite(uba))
-        Ac, lc, uc = A[cand], lba[cand], uba[cand]
+        lc, uc = lba[cand], uba[cand]
+        Hr = H[np.ix_(fv, fv)]
+        gr = g[fv] + H[np.ix_(fv, np.flatnonzero(lbx == ubx))] @ xfix[lbx == ubx]
+        lbr, ubr = lbx[fv], ubx[fv]
         work = np.zeros(len(cand), dtype=bool)
         work |= lc == uc                                       # equalities
         work |= np.isin(cand, self._hint)                      # rows that bound the last answer
+        x = None
         if x0 is not None and np.all(np.isfinite(x0)):
-            r = Ac @ np.clip(x0, lbx, ubx)
-            self._add(work, np.maximum(r - uc, lc - r) + self.screen_margin, qp.n)
+            x = np.clip(x0, lbx, ubx)
+            r = A[cand] @ x
+            self._add(work, np.maximum(r - uc, lc - r) + self.screen_margin, len(fv))
         wall = cpu = 0.0
         attempts = []
+        A_fixed = A[:, lbx == ubx] @ xfix[lbx == ubx] if np.any(xfix) else None
+        why = "rounds"
         for _ in range(self.max_rounds):
             if work.sum() > self.max_fraction * len(cand):
+                why = f"working set {work.sum()} of {len(cand)} rows"
                 break
             rows = np.flatnonzero(work)
-            chain = self._chain(len(rows))
+            chain = self._chain(len(fv), len(rows))
             mb = chain.m
-            Ar = np.zeros((mb, qp.n)); Ar[:len(rows)] = Ac[rows]
-            lr = np.full(mb, -np.inf); lr[:len(rows)] = lc[rows]
-            ur = np.full(mb, np.inf); ur[:len(rows)] = uc[rows]
-            data = (Hdm, g, dm(Ar), lr, ur, lbx, ubx)
-            sol = chain.solve(*data, x0=x0)
+            Ar = np.zeros((mb, len(fv)))
+            Ar[:len(rows)] = A[np.ix_(cand[rows], fv)]
+            shift = 0.0 if A_fixed is None else A_fixed[cand[rows]]
+            lr = np.full(mb, -np.inf); lr[:len(rows)] = lc[rows] - shift
+            ur = np.full(mb, np.inf); ur[:len(rows)] = uc[rows] - shift
+            data = (Hr, gr, Ar, lr, ur, lbr, ubr)
+            xr0 = None if x is None else x[fv]
+            sol = chain.solve(*data, x0=xr0)
             self.rounds += 1
             wall, cpu = wall + sol.solve_time_s, cpu + sol.cpu_time_s
             attempts += sol.attempts
             if sol.outcome is QPStatus.INFEASIBLE:
-                # daqp has reported -1 on reduced QPs that qpOASES and HiGHS solve: a reduced
-                # "infeasible" is confirmed on the full QP below
-                self.confirmations += 1
-                break
+                if sol.solver != chain.name or proves_infeasible(Ar, lr, ur, lbr, ubr, sol.lam_a):
+                    self.proofs += sol.solver == chain.name
+                    return self._done(self._full(sol, fv, xfix, rows, cand), attempts, wall, cpu)
+                # unverified: ask the fallbacks on the same reduced QP
+                self.second_opinions += 1
+                sol = chain.solve(*data, x0=None, start=1, check=None)
+                wall, cpu = wall + sol.solve_time_s, cpu + sol.cpu_time_s
+                attempts += sol.attempts
+                if sol.outcome is QPStatus.INFEASIBLE:
+                    return self._done(self._full(sol, fv, xfix, rows, cand), attempts, wall, cpu)
             if sol.outcome is not QPStatus.OPTIMAL:
+                why = f"reduced {sol.outcome.value}"
                 break
-            r = Ac @ sol.x
+            x = xfix.copy()
+            x[fv] = sol.x
+            r = A[cand] @ x
             viol = np.maximum(r - uc, lc - r)
             if not np.any((viol > self.add_tol) & ~work):
-                lam = sol.lam_a[:len(rows)]
-                self._hint = cand[rows[np.abs(np.nan_to_num(lam)) > 1e-12]]       # the active set
+                full = self._full(sol, fv, xfix, rows, cand)
+                self._hint = cand[rows[np.abs(np.nan_to_num(sol.lam_a[:len(rows)])) > 1e-12]]   # the active set
                 if check is not None:
-                    note = check(sol.x, A)
+                    note = check(full.x, A)
                     if note:
-                        sol.success, sol.outcome, sol.status = False, QPStatus.NUMERICAL, f"{sol.status}; {note}"
+                        full.success, full.outcome, full.status = False, QPStatus.NUMERICAL, f"{full.status}; {note}"
+                        why = note
                         break
-                return self._done(sol, attempts, wall, cpu)
-            self._add(work, viol, qp.n)
-            x0 = sol.x
+                return self._done(full, attempts, wall, cpu)
+            self._add(work, viol, len(fv), near=True)
         # the full QP, as without the working set
         self.full_solves += 1
-        full = qp.solver.solve(*qp.data(K, nseek, beta, gamma, hf_tol, slew_a_per_s), x0=None,
+        self.last_fallback = why
+        full = qp.solver.solve(*qp.numeric(K, nseek, beta, gamma, hf_tol, slew_a_per_s), x0=None,
                                check=None if check is None else (lambda x: check(x, A)))
         if full.outcome is QPStatus.OPTIMAL:
             self._hint = np.flatnonzero(np.abs(np.nan_to_num(full.lam_a)) > 1e-12)
         return self._done(full, attempts + full.attempts, wall + full.solve_time_s, cpu + full.cpu_time_s)
 
-    def _add(self, work, viol, n) -> None:
-        """Add the rows violated by more than ``add_tol`` to ``work``, at most ``max_add * n``, the
-        most violated first."""
-        idx = np.flatnonzero((viol > self.add_tol) & ~work)
+    def _full(self, sol: QPSolution, fv, xfix, rows, cand) -> QPSolution:
+        """The reduced answer in the full problem's variables and rows."""
+        x = xfix.copy()
+        x[fv] = sol.x if sol.x.size == fv.size else np.nan
+        lam_a = np.zeros(self.qp.m)
+        lam_a[cand[rows]] = sol.lam_a[:len(rows)]
+        lam_x = np.zeros(self.qp.n)
+        if sol.lam_x.size == fv.size:
+            lam_x[fv] = sol.lam_x
+        return QPSolution(x, lam_a, lam_x, sol.success, sol.status, sol.solve_time_s, sol.cpu_time_s, sol.outcome,
+                          sol.solver, sol.attempts)
+
+    def _add(self, work, viol, n, near: bool = False) -> None:
+        """Add the rows violated by more than ``add_tol`` to ``work`` (with ``near``: also the rows
+        within ``self.near`` of their bound), at most ``max_add * n`` + the violated, the most violated
+        first."""
+        bad = (viol > self.add_tol) & ~work
+        idx = np.flatnonzero(bad)
         cap = max(int(self.max_add * n), 1)
         if len(idx) > cap:
             idx = idx[np.argsort(viol[idx])[-cap:]]
         work[idx] = True
+        if near and self.near > 0:
+            close = np.flatnonzero((viol > -self.near) & ~work)
+            room = max(cap - len(idx), 0)
+            if len(close) > room:
+                close = close[np.argsort(viol[close])[-room:]] if room else close[:0]
+            work[close] = True
 
     @staticmethod
     def _done(sol: QPSolution, attempts, wall, cpu) -> QPSolution:
