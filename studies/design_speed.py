@@ -5,8 +5,8 @@ Run::
     python studies/design_speed.py [--against REV] [--ks 1,10,50,200,1000] [--identified PLANT.json]
 
 The same worker (``--worker``) runs in fresh processes, once on ``git archive REV`` (default
-``e6b5b6e``: the design code before the SeekProblem refactor; ``37b8cdb`` works too) and twice on this
-tree, with one BLAS thread set by the environment (``--blas-default``: the library's default thread
+``37b8cdb``, the commit issue 12 measured; ``e6b5b6e`` works too) and on this tree (and with
+``--working-set`` once more), with one BLAS thread set by the environment (``--blas-default``: the library's default thread
 count, where this tree's designer limits BLAS to ``SolverSettings.blas_threads`` itself).  Each
 worker builds ONE designer per (design plant, nominal/robust) and designs every length in turn (the
 designer of a sweep: warm process, structures reused), recording:
@@ -34,7 +34,8 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-KS = (1.0, 10.0, 50.0, 200.0, 1000.0)
+#: Lengths designed in turn by one designer, as in a sweep (log-spaced neighbours from 100 tracks on).
+KS = (1.0, 10.0, 50.0, 100.0, 130.0, 170.0, 220.0, 290.0, 380.0, 500.0, 650.0, 850.0, 1000.0)
 
 
 def worker(plants_json: str, ks: list, out: str, variant: str = "default") -> None:
@@ -102,7 +103,8 @@ def run_tree(tree: Path, plants_json: Path, ks, out: Path, variant: str = "defau
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--against", default="e6b5b6e", help="git revision to compare with")
+    ap.add_argument("--against", default="37b8cdb", help="git revision to compare with")
+    ap.add_argument("--working-set", action="store_true", help="also run SolverSettings(working_set=True)")
     ap.add_argument("--ks", default=",".join(f"{k:g}" for k in KS))
     ap.add_argument("--identified", help="identified plant JSON (default: identify the bundled sample log)")
     ap.add_argument("--before-json", help="reuse the older revision's worker output (skip that run)")
@@ -140,7 +142,8 @@ def main(argv=None) -> int:
         before = run_tree(old, plants, ks, tmp / "before.json", one_thread=not a.blas_default)
     after = run_tree(ROOT, plants, ks, tmp / "after.json", one_thread=not a.blas_default)
     wset = {(r["plant"], r["design"], r["K"]): r
-            for r in run_tree(ROOT, plants, ks, tmp / "working_set.json", "working_set", not a.blas_default)}
+            for r in (run_tree(ROOT, plants, ks, tmp / "working_set.json", "working_set", not a.blas_default)
+                      if a.working_set else [])}
     key = {(r["plant"], r["design"], r["K"]): r for r in before}
     print(f"\nagainst {a.against}; BLAS threads: {'library default' if a.blas_default else '1 (environment)'}; "
           f"worker outputs in {tmp}")
@@ -165,7 +168,13 @@ def main(argv=None) -> int:
               f"{r['cpu_s']:.3f} | {ratio:.2f} | {w.get('N', w.get('error', '?'))} | "
               f"{w.get('cpu_s', float('nan')):.3f} |")
     import statistics
-    print(f"\nlargest change of the designed settle samples: {worst}")
+    print(f"\nlargest change of the designed settle samples: {worst}; load average {os.getloadavg()}")
+    for d in ("nominal", "robust"):
+        for tree, rows in (("before", before), ("after", after)):
+            cpu = [r["cpu_s"] for r in rows if r.get("design") == d and "cpu_s" in r and "error" not in r]
+            if cpu:
+                print(f"{d}, {tree}: median CPU per design {statistics.median(cpu) * 1e3:.1f} ms "
+                      f"(max {max(cpu) * 1e3:.1f} ms, {len(cpu)} designs)")
     for name, rat in (("default", ratios), ("working set", wratios)):
         for d, rs in rat.items():
             print(f"{d}, {name}: CPU before/after per design, median {statistics.median(rs):.2f}x "

@@ -101,6 +101,7 @@ class _Stats:
     def __init__(self, primary: str):
         self.primary = primary
         self.n, self.t, self.status, self.fallback, self.unresolved = 0, 0.0, "", 0, []
+        self.unconfirmed = set()        # (structure, length) whose "infeasible" a search step took unproven
 
     def add(self, N: int, sol) -> None:
         self.n += 1
@@ -228,7 +229,7 @@ class SeekDesigner:
                                                                      builds=self._count_solver))
         return self._ws[qp]
 
-    def _solve(self, qp: _qp.SeekQP, K, n, beta, stats: _Stats, warm=None, epigraph=False):
+    def _solve(self, qp: _qp.SeekQP, K, n, beta, stats: _Stats, warm=None, epigraph=False, confirm=True):
         hf_tol = self.hf_tol if self.guard_bands else None
         args = (K, n, None if epigraph else beta, self.gamma, hf_tol, self.slew)
         tol = self.settings.violation_tol
@@ -238,7 +239,9 @@ class SeekDesigner:
             viol = qp.violation(x, K, *bounds[1:], A=A)
             return f"constraint violation {viol:.2g}" if viol > tol else ""
         if self.settings.working_set:
-            sol = self._working_set(qp).solve(*args, x0=warm, check=check)
+            sol = self._working_set(qp).solve(*args, x0=warm, check=check, confirm=confirm)
+            if getattr(sol, "unconfirmed", False):
+                stats.unconfirmed.add((id(qp), n))
         else:
             sol = qp.solver.solve(*qp.numeric(*args), x0=warm, check=check)
         stats.add(n, sol)
@@ -361,16 +364,27 @@ class SeekDesigner:
         hi, best = self._bisect(qp, K, lo, c, sol, stats)
         return self._verify(qp, c, hi, best, K, stats, n_rigid)
 
-    def _bisect(self, qp, K, lo, hi, best, stats):
-        """Fewest feasible seek samples in ``(lo, hi]`` (``hi`` feasible with answer ``best``)."""
-        while hi - lo > 1:
-            mid = (lo + hi) // 2
-            s = self._solve(qp, K, mid, self.beta, stats, warm=best.x)
-            if s.success:
-                hi, best = mid, s
-            else:           # infeasible, or undecided: either way not a design at ``mid``
-                lo = mid
-        return hi, best
+    def _bisect(self, qp, K, lo, hi, best, stats, floor=None):
+        """Fewest feasible seek samples in ``(lo, hi]`` (``hi`` feasible with answer ``best``); lengths
+        down to ``floor`` (default ``lo``: proven) are re-opened when an unproven step is refuted."""
+        floor = lo if floor is None else floor
+        while True:
+            while hi - lo > 1:
+                mid = (lo + hi) // 2
+                s = self._solve(qp, K, mid, self.beta, stats, warm=best.x, confirm=False)
+                if s.success:
+                    hi, best = mid, s
+                else:           # infeasible, or undecided: either way not a design at ``mid``
+                    lo = mid
+            # the answer rests on ``hi - 1`` being infeasible: a search step that took it unproven is
+            # confirmed (fallbacks on the reduced QP, then the full QP) before the answer stands
+            if hi - 1 <= floor or (id(qp), hi - 1) not in stats.unconfirmed:
+                return hi, best
+            stats.unconfirmed.discard((id(qp), hi - 1))
+            s = self._solve(qp, K, hi - 1, self.beta, stats, warm=best.x, confirm=True)
+            if not s.success:
+                return hi, best
+            hi, best, lo = hi - 1, s, floor
 
     def _predict(self, n_rigid: int) -> int | None:
         """Settle samples predicted for a seek whose rigid bang-bang takes ``n_rigid`` samples: the
@@ -405,12 +419,12 @@ class SeekDesigner:
         while True:
             qp = self._structure(c, False)
             lo_c, n0 = lo, min(max(n_pred, lo + 1), c)
-            s = self._solve(qp, K, n0, self.beta, stats)
+            s = self._solve(qp, K, n0, self.beta, stats, confirm=False)
             if s.success:
                 hi, best, step = n0, s, 1
                 while hi - step > lo_c:
                     m = hi - step
-                    t = self._solve(qp, K, m, self.beta, stats, warm=best.x)
+                    t = self._solve(qp, K, m, self.beta, stats, warm=best.x, confirm=False)
                     if not t.success:
                         lo_c = m
                         break
@@ -419,14 +433,14 @@ class SeekDesigner:
                 lo_c, step, hi, best = n0, 1, None, None
                 while hi is None:
                     m = min(lo_c + step, c)
-                    t = self._solve(qp, K, m, self.beta, stats)
+                    t = self._solve(qp, K, m, self.beta, stats, confirm=False)
                     if t.success:
                         hi, best = m, t
                     elif m == c:
                         return None     # nothing in this class: the class scan goes on from here
                     else:
                         lo_c, step = m, 2 * step
-            hi, best = self._bisect(qp, K, lo_c, hi, best, stats)
+            hi, best = self._bisect(qp, K, lo_c, hi, best, stats, floor=lo)
             # the scan takes the first class whose longest seek is feasible: a smaller class that holds
             # this length is that class (re-searched there, from this length)
             prev = [x for x in classes if x < c]

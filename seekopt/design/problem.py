@@ -59,10 +59,11 @@ class SolverSettings:
     violation_tol : float
         Largest relative constraint violation accepted from a solver's answer.
     working_set : bool
-        Solve each QP on a working set of its rows, adding back violated rows
-        (:class:`seekopt.design.working_set.WorkingSetQP`; the same optimum on far fewer rows).  Off by
-        default: a reduced "infeasible" must be confirmed on the full QP (daqp has reported -1 on
-        reduced QPs that other solvers solve), which cancels the gain (``studies/design_speed.py``).
+        Solve each QP on its free variables and a working set of its rows, adding back violated rows
+        (:class:`seekopt.design.working_set.WorkingSetQP`; the same optimum on far fewer rows).  A
+        reduced "infeasible" stands only with a verified Farkas certificate or the fallbacks' proof on
+        the reduced QP, else the full QP decides; search steps of the seek-length search take it
+        unproven and the designer confirms the length its answer rests on (``studies/design_speed.py``).
     blas_threads : int or None
         BLAS threads while designing (``threadpoolctl``; None: leave as is).  The design's matrices
         are small: with 2 OpenBLAS threads on this 2-core machine three robust designs took 8-12 s
@@ -77,7 +78,7 @@ class SolverSettings:
     thin_above_samples: int = 128
     thin_stride: int = 2
     violation_tol: float = 1e-3
-    working_set: bool = False
+    working_set: bool = True
     blas_threads: int | None = 1
 
     def __post_init__(self):
