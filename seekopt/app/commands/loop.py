@@ -5,19 +5,10 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from seekopt.app.commands.common import UsageError
+from seekopt.app.commands.common import UsageError, check_output_dir, check_output_file
 from seekopt.app.commands.inputs import load_plant
 
 __all__ = ["cmd_loop"]
-
-
-def _output_path(path, what: str) -> None:
-    """A file we are about to write: its folder must exist and it must not be a folder."""
-    p = Path(path)
-    if p.is_dir():
-        raise UsageError(f"{path}: {what} is a directory")
-    if not p.parent.is_dir():
-        raise UsageError(f"{path}: folder {p.parent} for the {what} does not exist")
 
 
 def cmd_loop(args) -> int:
@@ -36,11 +27,11 @@ def cmd_loop(args) -> int:
     log = read_log(args.log)
     val = read_log(args.validate) if args.validate else None
     model = load_plant(args.plant) if args.plant else None
-    _output_path(args.report, "report")
-    if args.output:
-        _output_path(args.output, "augmented plant")
-        if Path(args.output).resolve() == Path(args.report).resolve():
-            raise UsageError(f"{args.output}: -o and --report name the same file")
+    check_output_file(args.report, "--report")
+    check_output_file(args.output, "-o")
+    check_output_dir(args.figures, "--figures")
+    if args.output and Path(args.output).resolve() == Path(args.report).resolve():
+        raise UsageError(f"{args.output}: -o and --report name the same file")
     if val is None and seek_windows(log).n_groups < 4:
         raise UsageError(f"{args.log}: needs at least 4 seeks to hold some out for validation "
                          f"(has {seek_windows(log).n_groups}); give --validate LOG")
