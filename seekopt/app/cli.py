@@ -8,6 +8,11 @@ traceback (exit status 1).  Outputs are written atomically.  Steps that take mor
 print a one-line stage log with the elapsed time on stderr (``--quiet`` silences it; warnings
 and errors are always printed).
 
+BLAS threads: every command runs with one BLAS/OpenMP thread (``threadpoolctl``); the matrices
+of identification and design are small, and a multi-threaded BLAS on a shared or loaded machine
+spins more CPU than it saves.  Set ``SEEKOPT_BLAS_THREADS=N`` to allow ``N`` (``0``: leave the
+libraries' own setting).  Sweep workers hold one thread each (:mod:`seekopt.evaluate.engines`).
+
 One module per command in :mod:`seekopt.app.commands` maps parsed arguments onto the API of one
 module (``cmd_<name>``); the logic lives in those modules.  Helpers the commands share live in
 :mod:`seekopt.app.commands.common` (:class:`UsageError`, :func:`progress`, :func:`warn`,
@@ -17,6 +22,8 @@ module (``cmd_<name>``); the logic lives in those modules.  Helpers the commands
 from __future__ import annotations
 
 import argparse
+import contextlib
+import os
 import sys
 
 from seekopt.app.commands.bench import cmd_bench
@@ -211,13 +218,25 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     args.progress_after_s = PROGRESS_AFTER_S
     try:
-        return int(args.func(args) or 0)
+        with _blas_threads():
+            return int(args.func(args) or 0)
     except input_errors() as exc:
         print(f"seekopt {args.command}: error: {message(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"seekopt {args.command}: interrupted", file=sys.stderr)
         return 130
+
+
+def _blas_threads():
+    """Context limiting BLAS to ``SEEKOPT_BLAS_THREADS`` threads (default 1; 0 leaves it as is)."""
+    raw = os.environ.get("SEEKOPT_BLAS_THREADS", "1").strip()
+    n = int(raw) if raw.isdigit() else 1
+    if n == 0:
+        return contextlib.nullcontext()
+    import numpy  # noqa: F401  (load the BLAS so that threadpoolctl sees it)
+    from threadpoolctl import threadpool_limits
+    return threadpool_limits(limits=n)
 
 
 if __name__ == "__main__":
