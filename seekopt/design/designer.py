@@ -53,10 +53,12 @@ from seekopt.design.working_set import WorkingSetQP
 __all__ = ["DesignInfeasible", "DesignError", "DesignResult", "SeekDesigner", "design_seek"]
 
 
-#: Structures with fewer rows are solved whole even with ``SolverSettings.working_set``: a nominal
-#: QP (400-1400 rows) solves in one daqp call faster than in working-set rounds (studies/design_speed.py:
-#: nominal median 0.74x of 37b8cdb's CPU with the working set on every structure); the robust set's
-#: (5000-11000 rows) gains 2-3x.
+#: A design on one plant solves its structures whole below this many rows even with
+#: ``SolverSettings.working_set``: a nominal QP (400-1400 rows) solves in one daqp call faster than in
+#: working-set rounds (studies/design_speed.py: nominal median 0.74x of 37b8cdb's CPU with the working set
+#: on every structure); designs over a plant set always use it (22 plants: 5000-11000 rows, 2-3x less
+#: CPU; a 3-plant drift set at K = 1000: 3 s against 12.7 s CPU, where daqp failed on the whole QP and the
+#: fallback solver took 11 s).
 WORKING_SET_MIN_ROWS = 2500
 
 
@@ -245,7 +247,7 @@ class SeekDesigner:
         def check(x, A=None):       # never trust a status alone: re-check the answer against the data
             viol = qp.violation(x, K, *bounds[1:], A=A)
             return f"constraint violation {viol:.2g}" if viol > tol else ""
-        if self.settings.working_set and qp.m >= WORKING_SET_MIN_ROWS:
+        if self.settings.working_set and (len(self.plants) > 1 or qp.m >= WORKING_SET_MIN_ROWS):
             sol = self._working_set(qp).solve(*args, x0=warm, check=check, confirm=confirm)
             if getattr(sol, "unconfirmed", False):
                 stats.unconfirmed.add((id(qp), n))
