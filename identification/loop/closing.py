@@ -8,8 +8,8 @@
    from rest at each seek start, re-anchored every window) and analyses the residual;
 3. fits every candidate of :data:`identification.loop.candidates.CANDIDATES` on the fit data
    (jointly with ``k0``, ``bias_a``, the declared modes' gains and the linear parameters of the
-   effects already accepted), simulates it, and accepts the one with the lowest validation RMS
-   if (a) its BIC on the fit data (output error on an effective sample size) drops by more
+   effects already accepted), simulates it, and accepts, among those that pass, the one with
+   the largest BIC drop, a candidate passing if (a) its BIC on the fit data (output error on an effective sample size) drops by more
    than ``settings.min_bic_drop``, (b) its validation RMS drops by ``min_validation_drop`` --
    or, for a re-parameterisation with fewer parameters (an amplifier lag in place of extra
    delay and a damped "mode"), does not rise -- (c) it lowers the error of at least
@@ -320,7 +320,7 @@ def close_loop(log: SeekLog, model: ModalPlant, validation: SeekLog | None = Non
         if not ok:
             stage("candidates", ts, f"iteration {it}: {len(tried)} candidates fitted, none accepted")
             break
-        best, rf, rv = min(ok, key=lambda t: t[0].rms_after)
+        best, rf, rv = max(ok, key=lambda t: t[0].bic_drop)     # one criterion for all: the BIC on the fit data
         best.accepted = True
         accepted.append(best.effect)
         before = cur.val.rms
