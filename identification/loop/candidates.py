@@ -80,12 +80,14 @@ def fit_amplifier_lag(plant, data, settings):
         # lag's low-frequency delay (a lag the identification absorbed as delay)
         delays = (lambda b: (plant.delay_s, max(plant.delay_s - 1.0 / (2 * math.pi * b), 0.0))) if free_delay \
             else (lambda b: (plant.delay_s,))
-        grid = [(math.log(b), d) for b in np.geomspace(0.02 * fs, 0.6 * fs, 8) for d in dict.fromkeys(delays(b))]
+        grid = [(math.log(b), d) for b in np.geomspace(0.02 * fs, 0.6 * fs, 7) for d in dict.fromkeys(delays(b))]
         costs = [cost(g) for g in grid]
         x0 = np.array(grid[int(np.argmin(costs))])
+        if math.exp(x0[0]) > 0.5 * fs:       # best as fast as the grid goes: a delay to the data
+            continue
         if free_delay:
             res = minimize(cost, x0, method="Nelder-Mead",
-                           options={"xatol": 2e-3, "fatol": 1e-6 * min(costs), "maxiter": 50,
+                           options={"xatol": 2e-3, "fatol": 1e-6 * min(costs), "maxiter": 40,
                                     "initial_simplex": np.vstack([x0, x0 + [0.3, 0.0], x0 + [0.0, 0.2 / fs]])})
             x = res.x if res.fun < min(costs) else x0
         else:

@@ -178,11 +178,18 @@ def _reidentify(cur: _State, fit: Data, val: Data, same: bool, it: int, st: Loop
     best, steps_all, absorbed_all = cur, [], []
     plant = cur.plant
     whole = seek_windows(fit.log, st.window_s, st.min_window_samples)
+    prev = None
     for r in range(st.reidentify_rounds):
         tr = time.time()
         kept, absorbed = reidentified(plant)
         comp = compensate(plant, fit.log, simulate(plant, fit.log, whole, continuous=False, record=True,
                                                    grid=fit.grid, cache=fit.cache), st.effect_step_s)
+        if prev is not None:
+            print("DBG", float(np.max(np.abs(prev.input_current() - comp.input_current()))), float(np.max(np.abs(prev.position_track - comp.position_track))))
+        if prev is not None and _same_data(prev, comp):
+            say(f"  re-identification round {r + 1}: the compensated log is the previous round's: converged")
+            break
+        prev = comp
         try:
             ident = identify(comp, method="robust", holdout_every=2 if same else 0)
         except (ValueError, np.linalg.LinAlgError, FloatingPointError) as exc:
@@ -210,6 +217,14 @@ def _reidentify(cur: _State, fit: Data, val: Data, same: bool, it: int, st: Loop
         if gain < st.reidentify_min_gain:
             break
     return best, steps_all, absorbed_all
+
+
+def _same_data(a: SeekLog, b: SeekLog, current_a: float = 1e-5, position_track: float = 2e-3) -> bool:
+    """Two compensated logs an identification cannot tell apart: currents within ``current_a`` [A]
+    (a tenth of the benchmark's force noise per sample) and positions within ``position_track``
+    [track] (a tenth of its sensor noise) everywhere."""
+    return (float(np.max(np.abs(a.input_current() - b.input_current()))) < current_a
+            and float(np.max(np.abs(a.position_track - b.position_track))) < position_track)
 
 
 # ------------------------------------------------------------------------------ loop

@@ -28,15 +28,21 @@ from identification.model.plant import ModalPlant
 __all__ = ["LinearModel", "linear_key"]
 
 
-def _fir(b: np.ndarray, x: np.ndarray, h: np.ndarray) -> np.ndarray:
-    """Rows of ``x`` filtered by the FIR ``b`` (powers of z^-1), each row preceded by its held value ``h``."""
-    k = len(b)
-    xp = np.concatenate([np.repeat(h[:, None], k - 1, axis=1), x], axis=1) if k > 1 else x
-    W = x.shape[1]
-    out = b[0] * xp[:, k - 1:k - 1 + W]
-    for j in range(1, k):
+_PAD = 3   #: history columns kept before each row (the numerators have at most 4 taps)
+
+
+def _pad(x: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """Rows of ``x`` preceded by ``_PAD`` copies of their held value ``h``."""
+    return np.concatenate([np.repeat(h[:, None], _PAD, axis=1), x], axis=1)
+
+
+def _fir(b: np.ndarray, xp: np.ndarray) -> np.ndarray:
+    """Rows of a padded ``xp`` (:func:`_pad`) filtered by the FIR ``b`` (powers of z^-1)."""
+    W = xp.shape[1] - _PAD
+    out = b[0] * xp[:, _PAD:] if b[0] else np.zeros((xp.shape[0], W))
+    for j in range(1, len(b)):
         if b[j]:
-            out = out + b[j] * xp[:, k - 1 - j:k - 1 - j + W]
+            out += b[j] * xp[:, _PAD - j:_PAD - j + W]
     return out
 
 
@@ -210,9 +216,12 @@ class LinearModel:
         fr = None if f is None else f[idx]
         hf = None if f is None else f[A]
         xl = None
+        wp = _pad(w, hc)
         if self.lag is not None:   # lag state, steady at the history
-            v = _fir(self.lag_b, w, hc)
+            v = _fir(self.lag_b, wp)
             xl = lfilter([1.0], self.lag_a, v, axis=1, zi=self._zi_lag[None, :] * (self.lag_b.sum() * hc)[:, None])[0]
+        xlp = None if xl is None else _pad(xl, hc)
+        frp = None if fr is None else _pad(fr, hf)
         per_window = windows is not None
         if per_window:
             row, wcol, wvalid, target = lay["row"], lay["wcol"], lay["wvalid"], lay["target"]
@@ -221,12 +230,14 @@ class LinearModel:
         for i, bl in enumerate(self.blocks):
             if i == 0 and not with_rigid:
                 continue
-            terms = [(bl["b_cmd"], w, hc)]
+            terms = [(bl["b_cmd"], wp, hc)]
             if xl is not None:
-                terms.append((bl["b_lag"], xl, hc))
+                terms.append((bl["b_lag"], xlp, hc))
             if fr is not None:
-                terms.append((bl["b_f"], fr, hf))
-            v = sum(_fir(b, x, h) for b, x, h in terms)              # the numerators, exactly
+                terms.append((bl["b_f"], frp, hf))
+            v = _fir(terms[0][0], terms[0][1])                      # the numerators, exactly
+            for b, xp, _ in terms[1:]:
+                v += _fir(b, xp)
             if i > 0:                                                # in steady state before each run
                 v_ss = sum(b.sum() * h for b, _, h in terms)
                 y = lfilter([1.0], bl["a"], v, axis=1, zi=bl["zi"][None, :] * v_ss[:, None])[0]
