@@ -13,13 +13,14 @@ from identification.loop.analysis import (correlations, detect_spindle, nonlinea
 from identification.loop.linear import LinearModel
 from identification.loop.residual import fit_percent, simulate
 from identification.loop.windows import Windows, seek_windows
-from seekopt.drive.presets import default_truth_plant
-from seekopt.evaluate.synth import SynthConfig, synthesize
+from tests.drives import Schedule, make_log, modal_plant, nss_drive
 
 
 @pytest.fixture(scope="module")
 def small_log():
-    return synthesize(SynthConfig(n_seeks=10, seed=3))
+    """10 seeks of the NSS-like independent drive (tests/drives) with the benchmark's noise."""
+    drive = nss_drive(seed=3)
+    return make_log(drive, Schedule(n_seeks=10, seed=3)), modal_plant(drive)
 
 
 def _project(windows, basis, x):
@@ -65,7 +66,8 @@ def test_reference_simulation_engines_agree(small_log, continuous):
 
 
 def test_exact_model_leaves_small_residual_without_noise():
-    log, truth = synthesize(SynthConfig(n_seeks=8, seed=4, noise=False, rro=False))
+    drive = nss_drive(noise=False)
+    log, truth = make_log(drive, Schedule(n_seeks=8, seed=4), noise_seed=None), modal_plant(drive)
     res = simulate(truth, log, seek_windows(log), continuous=False)
     # only the servo-rate ZOH of the mean sub-step current differs from the drive
     assert res.rms < 0.05
