@@ -184,8 +184,6 @@ def _reidentify(cur: _State, fit: Data, val: Data, same: bool, it: int, st: Loop
         kept, absorbed = reidentified(plant)
         comp = compensate(plant, fit.log, simulate(plant, fit.log, whole, continuous=False, record=True,
                                                    grid=fit.grid, cache=fit.cache), st.effect_step_s)
-        if prev is not None:
-            print("DBG", float(np.max(np.abs(prev.input_current() - comp.input_current()))), float(np.max(np.abs(prev.position_track - comp.position_track))))
         if prev is not None and _same_data(prev, comp):
             say(f"  re-identification round {r + 1}: the compensated log is the previous round's: converged")
             break
