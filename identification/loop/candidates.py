@@ -148,7 +148,8 @@ def fit_position_bias(plant, data, settings):
     ``settings.bias_knots`` equally spaced knots over ``data.domain`` (the positions the fit
     and validation logs visit: the table is defined wherever the model will be simulated),
     values by least squares jointly with the base, with a roughness penalty (second or third
-    differences) whose order and weight are chosen by 2-fold cross-validation over seeks
+    differences, or a smooth count of kinks) whose order and weight are chosen by 2-fold
+    cross-validation over seeks
     (:func:`identification.loop.stats.smooth_lstsq`: a smooth flex-cable bias and a table with
     kinks alike).  A force error of 1e-5 A already shows as about a track over a 10 ms window,
     so the table must interpolate between the positions where the head dwelt to the

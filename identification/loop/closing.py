@@ -37,7 +37,7 @@ from identification.loop.compensate import compensate, reidentified
 from identification.loop.evidence import dependence, describe_residual, evidence_lines, unexplained_lines
 from identification.loop.fit_engine import Data, refit_base
 from identification.loop.residual import Residual, simulate
-from identification.loop.result import LoopResult, Step, errors, improved_fraction
+from identification.loop.result import LoopResult, Step, errors, improved_fraction, range_errors
 from identification.loop.settings import LoopSettings
 from identification.loop.stats import bic, effective_n, lstsq
 from identification.loop.windows import seek_windows
@@ -48,6 +48,9 @@ __all__ = ["LoopSettings", "LoopResult", "Step", "close_loop", "evaluate", "spli
 
 #: candidates that may be accepted more than once
 REPEATABLE = ("extra_mode",)
+
+#: effects that depend on the head's position (defined on the positions they were fitted on)
+POSITION_EFFECTS = ("position_bias", "torque_constant_variation", "pivot_spring_damper")
 
 #: free-form dependences along variables that no library effect models; a candidate that
 #: explains clearly less than one of them is a proxy and is not accepted
@@ -360,7 +363,9 @@ def close_loop(log: SeekLog, model: ModalPlant, validation: SeekLog | None = Non
             stage("reidentify", ts, f"iteration {it}: re-identification: validation rms {prev:.4g} -> {cur.val.rms:.4g}")
         cur.rescore(fit)
     ts = time.time()
-    pos = fit.log.position_track[fit.windows.index()]
+    # the positions the fit log settled on: position-dependent effects are pinned there by the
+    # dwell (a seek only passes the positions beyond them); a seek may start and end inside
+    pos = fit.log.target_track[fit.windows.index()]
     plant = cur.plant.copy()
     plant.meta = dict(plant.meta, log=Path(log.source).name if log.source else None,
                       position_range_track=[float(pos.min()), float(pos.max())],
@@ -371,7 +376,15 @@ def close_loop(log: SeekLog, model: ModalPlant, validation: SeekLog | None = Non
             "validation": "validation log" if not same else "held-out odd seeks of the log",
             "base_refit": {"kept": bool(base_refit), "k0": float(refit.k0), "bias_a": float(refit.bias_a),
                            "rms_track": float(rv_base.rms)},
+            "validation_by_range": {"before": range_errors(res0, float(pos.min()), float(pos.max())),
+                                    "after": range_errors(cur.val, float(pos.min()), float(pos.max()))},
             "reidentified": reids, "accepted": accepted, "substeps": fit.grid.L, "effect_evaluations": fit.grid.M}
+    vr = info["validation_by_range"]["after"]
+    if vr["windows_outside_range"] and any(e.name in POSITION_EFFECTS for e in cur.plant.effects):
+        notes.append(f"{vr['windows_outside_range']} validation window(s) leave the fit log's positions "
+                     f"{vr['position_range_track'][0]:.0f}..{vr['position_range_track'][1]:.0f} track, where the "
+                     f"position-dependent effects are extrapolated: validation rms {vr['rms_outside_range_track']:.4g} "
+                     f"track there, {vr['rms_in_range_track']:.4g} on the {vr['windows_in_range']} window(s) inside")
     fdata, vdata = fit.freeze(cur.plant, cur.fit), val.freeze(cur.plant, cur.val)
     analysis_after = describe_residual(cur.plant, vdata, cur.val, st)
     unexplained = unexplained_lines(cur.plant, fdata, vdata, cur.val, analysis_after, st)
