@@ -247,7 +247,7 @@ def test_cli_loop_from_a_plant_writes_the_augmented_plant(tmp_path, capsys):
     input is one line, exit 2, and nothing is written."""
     from seekopt.app.cli import main
     eff = study.random_effect("input_delay", np.random.default_rng(19))
-    log, truth = synthesize(SynthConfig(n_seeks=16, seed=19, rro=False, effects=[eff]))
+    log, truth = drive_log(16, 19, runout=False, effects=[eff])
     write_log(log, tmp_path / "a.npz")
     study.standin_model(truth.copy(effects=[]), 19).to_json(tmp_path / "p.json")
     args = ["loop", str(tmp_path / "a.npz"), "--plant", str(tmp_path / "p.json"), "--report", str(tmp_path / "r.json")]
@@ -389,111 +389,4 @@ def test_compensated_log_is_what_the_linear_plant_sees():
     assert np.abs(c.position_track - y).max() > 0.2            # the run-out is removed
 
 
-# ------------------------------------------- loop quality on drives unlike the default synth (slow)
-import loop_drives  # noqa: E402  (studies/loop_drives.py: near-continuous effects, a 50.4 kHz drive)
-
-_SLOPE = {"effect": "position_bias", "params": {"knots_track": [0.0, 60000.0], "bias_a": [-0.03, 0.03]}}
-_X = np.linspace(0.0, 60000.0, 41)
-_SMOOTH = {"effect": "position_bias", "params": {"knots_track": list(_X), "bias_a": list(
-    0.02 * np.tanh((_X - 30000.0) / 15000.0) + 0.01 * ((_X - 30000.0) / 30000.0) ** 2)}}
-
-
-def _fine_log(effects, seed, n=80, stroke=(0.0, 60000.0), drive="26k"):
-    cfg = SynthConfig(n_seeks=n, seed=seed, rro=False, effects=effects, stroke_track=stroke)
-    if drive == "26k":
-        return loop_drives.synthesize_drive(cfg, oversample=8)
-    plant, ctrl, dist, md = loop_drives.drive_50k(seed, rro=False)
-    return loop_drives.synthesize_drive(cfg, plant, ctrl, dist, oversample=8, metadata=md)
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("case", ["slope_wider_validation", "smooth", "smooth_50k"])
-def test_position_bias_reaches_the_clean_floor(case):
-    """Issue 10 item 6 (a): a position-dependent bias on a drive whose effects act continuously
-    (plant stepped 8x per current sub-step): after the loop the validation RMS is within 1.5x the
-    clean drive's (same schedules, same protocol).  ``slope_wider_validation``: a 60 mA slope over
-    the stroke, fitted on 10-50 ktrack and validated on a log over the whole stroke (was 21 track
-    against 0.09: the table was held constant beyond the fitted knots); ``smooth``: a smooth
-    20 mA bias (was 0.81 track: three to nine equally spaced knots).  Measured: 0.097, 0.106 and
-    0.081 track against 0.094, 0.094 and 0.075."""
-    drive = "50k" if case.endswith("50k") else "26k"
-    eff = _SLOPE if case.startswith("slope") else _SMOOTH
-    seeds = (21, 22) if drive == "50k" else (11, 12)
-    stroke = (10000.0, 50000.0) if case.startswith("slope") else (0.0, 60000.0)
-    log, truth = _fine_log([eff], seeds[0], stroke=stroke, drive=drive)
-    clog, _ = _fine_log([], seeds[0], stroke=stroke, drive=drive)
-    model = study.standin_model(truth.copy(effects=[]), seeds[0])
-    if drive == "50k":        # held-out seeks (a second log of this drive visits other positions)
-        R, C = close_loop(log, model), close_loop(clog, model)
-    else:
-        vlog, _ = _fine_log([eff], seeds[1], drive=drive)
-        cvlog, _ = _fine_log([], seeds[1], drive=drive)
-        R, C = close_loop(log, model, validation=vlog), close_loop(clog, model, validation=cvlog)
-    assert R.accepted[:1] == ["position_bias"], R.accepted
-    assert R.error_after["rms_track"] <= 1.5 * C.error_after["rms_track"], (R.error_after, C.error_after)
-    lo, hi = R.plant.meta["position_range_track"]
-    assert np.min(log.position_track) <= lo < hi <= np.max(log.position_track)
-
-
-def _identified(log):
-    from identification.estimate.identify import identify
-    return identify(log, method="robust").plant
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("drive", ["26k", "50k"])
-def test_amplifier_lag_is_named_not_absorbed(drive):
-    """Issue 10 item 6 (b): identification absorbs a 3 kHz amplifier lag as ~50 us of extra
-    delay plus a "mode" near 3.4-5.2 kHz with zeta ~0.7; the loop names the lag with its
-    bandwidth (measured: 3194 Hz and 2989 Hz) and puts the delay back (13.2 us for 10, 5.8 us
-    for 6)."""
-    eff = [{"effect": "amplifier_lag", "params": {"bandwidth_hz": 3000.0}}]
-    if drive == "26k":
-        log, truth = loop_drives.synthesize_drive(SynthConfig(n_seeks=80, seed=33, effects=eff), oversample=4)
-    else:
-        plant, ctrl, dist, md = loop_drives.drive_50k(31)
-        log, truth = loop_drives.synthesize_drive(SynthConfig(n_seeks=80, seed=31, effects=eff), plant, ctrl, dist,
-                                                  oversample=4, metadata=md)
-    model = _identified(log)
-    assert model.total_delay_s > truth.delay_s + 30e-6        # the lag went into the delay
-    R = close_loop(log, model)
-    lag = [e for e in R.plant.effects if e.name == "amplifier_lag"]
-    assert lag and abs(lag[0].bandwidth_hz / 3000.0 - 1) < 0.15, R.plant.effects
-    assert abs(R.plant.total_delay_s - truth.delay_s) < 5e-6
-    assert not any(m.zeta >= 0.3 for m in R.plant.all_modes())
-    assert R.error_after["rms_track"] < R.error_before["rms_track"]
-
-
-@pytest.mark.slow
-def test_a_pure_delay_is_not_called_a_lag():
-    """The other side of (b): 50 us of extra delay on the 50.4 kHz drive stays a delay."""
-    eff = [{"effect": "input_delay", "params": {"delay_s": 50e-6}}]
-    plant, ctrl, dist, md = loop_drives.drive_50k(32)
-    log, truth = loop_drives.synthesize_drive(SynthConfig(n_seeks=80, seed=32, effects=eff), plant, ctrl, dist,
-                                              oversample=4, metadata=md)
-    R = close_loop(log, _identified(log))
-    assert "amplifier_lag" not in R.accepted, R.plant.effects
-    assert abs(R.plant.total_delay_s - truth.total_delay_s) < 2e-6
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("drive,seed", [("26k", 41), ("26k", 42), ("50k", 43), ("50k", 44)])
-def test_linear_drive_raises_no_nonlinearity_flag(drive, seed):
-    """Issue 10 item 6 (c): on linear drives (26.4 kHz multirate NSS drive; 50.4 kHz single-rate
-    drive with other modes, rpm/sectors in its metadata, run-out at 120 Hz) no nonlinear
-    correlation test fires after the loop (thresholds at a 1 % false-alarm rate per test, the
-    seeks as independent units; before: four or five tests beyond 3x their white band), no
-    nonlinear effect is accepted and the spindle is the metadata's 120 Hz."""
-    if drive == "26k":
-        log, truth = synthesize(SynthConfig(n_seeks=60, seed=seed))
-    else:
-        plant, ctrl, dist, md = loop_drives.drive_50k(seed)
-        log, truth = loop_drives.synthesize_drive(SynthConfig(n_seeks=60, seed=seed), plant, ctrl, dist,
-                                                  oversample=1, metadata=md)
-    R = close_loop(log, study.standin_model(truth, seed))
-    assert not any(u.startswith("nonlinear") for u in R.unexplained), R.unexplained
-    assert not set(R.accepted) & {"friction", "current_saturation", "torque_constant_variation", "position_bias"}
-    if drive == "50k":
-        assert R.analysis_after["spindle_hz"] == pytest.approx(120.0, abs=0.05), R.analysis_after["spindle_source"]
-        pd = [e for e in R.plant.effects if e.name == "periodic_disturbance"]
-        assert pd and pd[0].spindle_hz == pytest.approx(120.0)
+# Loop quality on the independent 50.4 kHz drive (issue 10, item 6): tests/test_loop_independent.py (slow).

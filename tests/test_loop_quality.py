@@ -9,7 +9,6 @@ from __future__ import annotations
 import numpy as np
 
 from identification.loop.fit_engine import hats
-from identification.loop.result import range_errors
 from identification.loop.stats import smooth_lstsq
 from identification.loop.windows import Windows
 
@@ -51,16 +50,24 @@ def test_chosen_penalty_reproduces_a_kinked_table():
     assert abs(th[k] - 1.0) < 0.02, (th[k], name, lam, edf)
 
 
-def test_range_errors_split_the_validation_windows():
-    class R:   # the fields range_errors reads
-        pass
-    r = R()
-    pos = np.r_[np.full(10, 100.0), np.linspace(100, 900, 10), np.full(10, 900.0)]
-    r.log = type("L", (), {"position_track": pos})()
-    r.windows = Windows([(0, 10), (10, 20), (20, 30)])
-    r.e = np.r_[np.full(10, 1.0), np.full(10, 2.0), np.full(10, 3.0)]
-    out = range_errors(r, 50.0, 500.0)
-    assert out["windows_in_range"] == 1 and out["windows_outside_range"] == 2
-    assert out["rms_in_range_track"] == 1.0
-    assert np.isclose(out["rms_outside_range_track"], np.sqrt((4 + 9) / 2))
-    assert out["position_range_track"] == [50.0, 500.0]
+def test_validation_seeks_outside_the_settled_positions_are_left_out():
+    """``split_data`` with held-out seeks: the fit (even) seeks settle on 0 ... 1000 track; the
+    validation seek to 5000 track leaves that range and is left out (returned apart), the other
+    three validate.  With a validation log every seek of the fit log sets the range."""
+    from identification.logs.seeklog import SeekLog
+    from identification.loop.closing import inside_groups, settled_range, split_data
+    fs = 10000.0
+    targets = [0.0, 1000.0, 500.0, 0.0, 5000.0, 1000.0, 0.0, 500.0, 1000.0]
+    tgt = np.repeat(targets, 200)
+    t = np.arange(len(tgt)) / fs
+    log = SeekLog(t, np.zeros_like(t), tgt.copy(), tgt, fs)
+    val = SeekLog(t, np.zeros_like(t), tgt.copy(), tgt, fs)
+    fit, v, same, out = split_data(log, val, outside=True)
+    lo, hi = settled_range(log, fit.windows)
+    assert (lo, hi) == (0.0, 5000.0)                 # every seek of the fit log
+    fit, v, same, out = split_data(log, outside=True)
+    lo, hi = settled_range(log, fit.windows)         # the even seeks: 1000, 0, 1000, 500
+    assert (lo, hi) == (0.0, 1000.0)
+    assert out is not None and out.windows.n_groups == 1 and v.windows.n_groups == 3
+    assert all(log.target_track[a] <= 1000.0 for a, _ in v.windows.bounds)
+    assert len(inside_groups(log, out.windows, lo, hi)) == 0

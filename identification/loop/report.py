@@ -22,16 +22,14 @@ def _fmt_params(p: dict) -> str:
     return ", ".join(f"{k}={f(v)}" for k, v in p.items())
 
 
-def _range_lines(vr) -> list:
-    """Validation RMS inside / outside the positions the effects were fitted on (Markdown lines)."""
-    if not vr or not vr["after"]["windows_outside_range"]:
+def _range_lines(vo) -> list:
+    """The validation seeks left out (outside the positions the fit log settled on), Markdown lines."""
+    if not vo or not vo["seeks"]:
         return []
-    b, a = vr["before"], vr["after"]
-    return [f"Validation windows inside the fit log's positions {a['position_range_track'][0]:.0f}.."
-            f"{a['position_range_track'][1]:.0f} track: {a['windows_in_range']}, RMS {b['rms_in_range_track']:.4g} -> "
-            f"{a['rms_in_range_track']:.4g} track; outside it (position-dependent effects extrapolated there): "
-            f"{a['windows_outside_range']}, RMS {b['rms_outside_range_track']:.4g} -> {a['rms_outside_range_track']:.4g}.",
-            ""]
+    lo, hi = vo["position_range_track"]
+    return [f"{vo['seeks']} validation seek(s) leave the positions the fit log settled on ({lo:.0f}..{hi:.0f} track, "
+            f"where the plant is defined) and are not used above: RMS there {vo['rms_before_track']:.4g} -> "
+            f"{vo['rms_after_track']:.4g} track.", ""]
 
 
 def markdown(R, figs=(), fig_dir: str = ".") -> str:
@@ -49,7 +47,7 @@ def markdown(R, figs=(), fig_dir: str = ".") -> str:
          "## Validation error", "", "| | RMS [track] | fit [%] |", "|---|---|---|",
          f"| before (identified model) | {eb['rms_track']:.4g} | {eb['fit_percent']:.4f} |",
          f"| after | {ea['rms_track']:.4g} | {ea['fit_percent']:.4f} |", "",
-         *_range_lines(loop.get("validation_by_range")),
+         *_range_lines(loop.get("validation_outside_range")),
          f"Ratio after/before: {ea['rms_track'] / max(eb['rms_track'], 1e-300):.3f}. Fit % is "
          "100 (1 - |e| / |y - mean_w(y)|) with the mean per window (the seek motion dominates it).", "",
          "## Steps", "",

@@ -29,23 +29,6 @@ def errors(res: Residual) -> dict:
     return {"rms_track": float(res.rms), "fit_percent": float(res.fit_percent)}
 
 
-def range_errors(res: Residual, lo: float, hi: float) -> dict:
-    """Validation RMS [track] split by where the windows go: ``rms_in_range_track`` over the
-    windows whose measured position stays inside ``[lo, hi]`` [track] (the positions the
-    effects were fitted on), ``rms_outside_range_track`` over the others, where a
-    position-dependent effect is extrapolated, and how many windows each holds."""
-    pos, i0, ins, outs = res.log.position_track, 0, [], []
-    for a, b in res.windows.bounds:
-        seg = res.e[i0:i0 + b - a]
-        i0 += b - a
-        (ins if float(pos[a:b].min()) >= lo and float(pos[a:b].max()) <= hi else outs).append(seg)
-
-    def r(parts):
-        return float(np.sqrt(np.mean(np.square(np.concatenate(parts))))) if parts else float("nan")
-    return {"position_range_track": [float(lo), float(hi)], "rms_in_range_track": r(ins),
-            "windows_in_range": len(ins), "rms_outside_range_track": r(outs), "windows_outside_range": len(outs)}
-
-
 def improved_fraction(new: Residual, old: Residual) -> float:
     """Fraction of validation seeks whose squared error the new model lowers [-]."""
     n, o = new.windows.per_group(new.e), old.windows.per_group(old.e)
@@ -86,8 +69,8 @@ class LoopResult:
     ``plant`` is the augmented plant (linear part + accepted effects; its ``meta`` records
     the log and ``position_range_track``, the range of positions [track] the fit log's seeks
     settled on, where the position-dependent effects were fitted and may be used); ``model`` the plant the loop started from; ``error_before`` / ``error_after``
-    the validation RMS [track] and fit [%] (``info["validation_by_range"]``: the same inside and
-    outside ``position_range_track``); ``info`` how the loop ran (simulation protocol,
+    the validation RMS [track] and fit [%] on the validation seeks inside ``position_range_track``
+    (``info["validation_outside_range"]``: the seeks left out and their RMS); ``info`` how the loop ran (simulation protocol,
     validation data, base re-fit, re-identifications); ``stage_s`` the wall time per stage [s]."""
 
     plant: ModalPlant
