@@ -46,6 +46,15 @@ def _fir(b: np.ndarray, xp: np.ndarray) -> np.ndarray:
     return out
 
 
+def _fir0(b: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Rows of ``x`` filtered by the FIR ``b`` with nothing before them (an empty delay line)."""
+    out = b[0] * x
+    for j in range(1, len(b)):
+        if b[j]:
+            out[:, j:] += b[j] * x[:, :-j]
+    return out
+
+
 def _layout(windows, n: int, L: int, m: int, restart: bool) -> dict:
     """Index arrays that lay the runs (seeks) and windows of a log out as rows of 2-D arrays, so
     that each filter runs once over all of them (cached on ``windows``)."""
@@ -245,8 +254,10 @@ class LinearModel:
                     flex[lay["flat"], i - 1] += y[valid]
                 else:
                     flex[lay["flat"]] += y[valid]
-            elif not per_window:
-                rigid[lay["flat"]] += lfilter([1.0], bl["a"], v, axis=1)[valid]
+            elif not per_window:   # the rigid block from rest with an empty delay line (history left to anchors)
+                raw = [w] + ([xl] if xl is not None else []) + ([fr] if fr is not None else [])
+                v0 = sum(_fir0(b, x) for (b, _, _), x in zip(terms, raw))
+                rigid[lay["flat"]] += lfilter([1.0], bl["a"], v0, axis=1)[valid]
             else:   # per window from rest 4 sub-steps before it (any state at its start is an anchor)
                 vp = np.concatenate([np.zeros((len(v), 4)), v], axis=1)
                 vp[:, :4] = v[:, :1]
