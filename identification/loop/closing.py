@@ -39,6 +39,7 @@ from identification.loop.fit_engine import Data, refit_base
 from identification.loop.residual import Residual, simulate
 from identification.loop.result import LoopResult, Step, errors, improved_fraction
 from identification.loop.settings import LoopSettings
+from identification.loop.split import inside_groups, settled_range, split_data
 from identification.loop.stats import bic, effective_n, lstsq
 from identification.loop.windows import seek_windows
 from identification.model.plant import ModalPlant
@@ -102,70 +103,6 @@ def evaluate(plant: ModalPlant, data: Data, same_log: bool = True, record: bool 
     res = simulate(plant.copy(effects=keep), data.log, data.windows, continuous=False, record=record,
                    grid=data.grid, cache=data.cache)
     return Residual(res.windows, _harmonic_nuisance(res, plant), res.y_sim, res.log, res.cmd, res.force, res.state)
-
-
-def settled_range(log: SeekLog, windows) -> tuple:
-    """``(lo, hi)`` [track]: the span of the positions the seeks of ``windows`` settled on (their
-    targets).  A position-dependent effect is pinned there by the dwell -- a force error of 1e-5 A
-    shows as about a track over a 10 ms window -- and only passed over beyond it; it is the range
-    the augmented plant is defined on (``meta["position_range_track"]``)."""
-    t = log.target_track[windows.index()]
-    return float(np.min(t)), float(np.max(t))
-
-
-def inside_groups(log: SeekLog, windows, lo: float, hi: float) -> list:
-    """The seeks (groups) of ``windows`` whose measured position stays inside ``[lo, hi]`` [track]."""
-    out = {}
-    for (a, b), g in zip(windows.bounds, windows.groups):
-        p = log.position_track[a:b]
-        out[g] = out.get(g, True) and float(p.min()) >= lo and float(p.max()) <= hi
-    return [g for g, ok in out.items() if ok]
-
-
-def split_data(log: SeekLog, validation: SeekLog | None = None, settings: LoopSettings | None = None,
-               outside: bool = False):
-    """Fit and validation :class:`Data` (held-out odd seeks when no validation log) and whether
-    they share the log.  Position-dependent effects are tabulated over the positions both logs
-    visit (``Data.domain``).
-
-    Validation uses the seeks that stay inside the positions the fit seeks settled on
-    (:func:`settled_range`): beyond them a position-dependent effect can only be extrapolated,
-    and an extrapolation error of a bias table (2 mA at 10 ktrack past the last settled track on
-    the independent 50.4 kHz drive: 37 track validation RMS there) would decide every choice of
-    the loop.  When fewer than a quarter of the validation seeks (or fewer than 2) stay inside,
-    all are used.  ``outside=True`` also returns the left-out validation seeks as a fourth
-    item (``Data`` or None)."""
-    st = settings or LoopSettings()
-
-    def win(lg):
-        return seek_windows(lg, st.window_s, st.min_window_samples)
-    logs = [log] + ([validation] if validation is not None else [])
-    dom = (min(float(np.min(lg.position_track)) for lg in logs), max(float(np.max(lg.position_track)) for lg in logs))
-    w = win(log)
-    if validation is not None:
-        fit = Data(log, w, effect_step_s=st.effect_step_s, domain=dom)
-        vlog, vw, same = validation, win(validation), False
-    else:
-        if w.n_groups < 4:
-            raise ValueError(f"{log.source or 'log'}: needs at least 4 seeks to hold some out "
-                             f"(has {w.n_groups}); give a validation log")
-        fw, vw = w.split(2)
-        fit = Data(log, fw, effect_step_s=st.effect_step_s, domain=dom)
-        vlog, same = log, True
-    lo, hi = settled_range(log, fit.windows)
-    keep = inside_groups(vlog, vw, lo, hi)
-    out_w = None
-    if len(keep) < vw.n_groups and len(keep) >= max(2, 0.25 * vw.n_groups):
-        out_w = vw.select_groups([g for g in dict.fromkeys(vw.groups) if g not in set(keep)])
-        vw = vw.select_groups(keep)
-
-    def data(wins):
-        return (Data(vlog, wins, grid=fit.grid, domain=dom, cache=fit.cache) if same
-                else Data(vlog, wins, effect_step_s=st.effect_step_s, domain=dom))
-    val = data(vw)
-    if outside:
-        return fit, val, same, (data(out_w) if out_w is not None else None)
-    return fit, val, same
 
 
 # ------------------------------------------------------------------------------ state
@@ -431,6 +368,11 @@ def close_loop(log: SeekLog, model: ModalPlant, validation: SeekLog | None = Non
             "validation_outside_range": _outside(model, cur.plant, out, same, pos),
             "reidentified": reids, "accepted": accepted, "substeps": fit.grid.L, "effect_evaluations": fit.grid.M}
     vo = info["validation_outside_range"]
+    n_in = len(inside_groups(val.log, val.windows, *pos))
+    if out is None and n_in < val.windows.n_groups:
+        notes.append(f"only {n_in} of {val.windows.n_groups} validation seeks stay inside the positions the fit log "
+                     f"settled on ({pos[0]:.0f}..{pos[1]:.0f} track): all are used, so a position-dependent effect is "
+                     f"judged where it can only be extrapolated; give a validation log over the same positions")
     if vo["seeks"]:
         notes.append(f"{vo['seeks']} validation seek(s) leave the positions the fit log settled on "
                      f"({vo['position_range_track'][0]:.0f}..{vo['position_range_track'][1]:.0f} track; the plant is "
