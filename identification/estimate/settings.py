@@ -160,6 +160,7 @@ class RobustSettings(IdentifySettings):
     ar_order: int = 32
     cov: str = "newey-west"
     nw_lags: int = 32
+    noise_model_passes: int = 1
     bias_from: str = "whole-log"
     periodic: object = "auto"
     periodic_harmonics: int = 10
