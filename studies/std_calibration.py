@@ -189,6 +189,30 @@ def table(results: dict, title: str = "") -> str:
     return "\n".join(out)
 
 
+def comparison(before: dict, after: dict) -> str:
+    """Markdown table of the RMS of ``z`` of two runs ``{drive: records}`` (e.g. two code versions
+    on the same logs)."""
+    out = ["| drive | parameter | RMS z before | RMS z after | mean z before | mean z after |", "|---|---|---|---|---|---|"]
+    for drive in after:
+        sb, sa = summary(before.get(drive, [])), summary(after[drive])
+        for k, a in sa.items():
+            b = sb.get(k)
+            fb = (f"{b['rms']:.2f} ± {b['rms_se']:.2f}", f"{b['mean']:+.2f}") if b else ("-", "-")
+            out.append(f"| {drive} | {k} | {fb[0]} | {a['rms']:.2f} ± {a['rms_se']:.2f} | {fb[1]} | {a['mean']:+.2f} |")
+    return "\n".join(out)
+
+
+def load_records(cache: str, drive: str, seeds, n_seeks: int):
+    """The cached records of ``seeds`` on ``drive`` in ``cache`` (those that exist)."""
+    out = []
+    for sd in seeds:
+        name = os.path.join(cache, f"{drive}_{sd}_{n_seeks}.rec.json")
+        if os.path.exists(name):
+            with open(name) as fh:
+                out.append(json.load(fh))
+    return out
+
+
 def by_mode(recs) -> str:
     """Per truth mode: n, RMS / mean z of frequency, damping, gain."""
     rows = {}
@@ -213,12 +237,20 @@ def main(argv=None) -> int:
     ap.add_argument("--jobs", type=int, default=1, help="worker processes")
     ap.add_argument("--cache", default=None, help="folder for the logs and the per-seed records")
     ap.add_argument("--modes", action="store_true", help="also the per-mode table")
+    ap.add_argument("--before", action="append", default=[],
+                    help="folder(s) of cached records of an earlier code version, for a before/after table")
     a = ap.parse_args(argv)
     drives = a.drive or ["50k", "36k"]
     t0 = time.perf_counter()
     results = {d: calibration(d, range(a.seeds), a.seeks, a.cache, a.jobs) for d in drives}
     print(table(results, f"**Normalised errors z = (estimate - truth) / reported std**, {a.seeds} noise seeds "
                          f"per drive, {a.seeks} seeks per log"))
+    whole = {d: [r for r in recs if not r["missed"]] for d, recs in results.items()}
+    print("\n" + table(whole, "Only the logs whose identification found every required mode (a missed mode is "
+                              "model error for the others, which no standard deviation covers):"))
+    if a.before:
+        before = {d: [r for c in a.before for r in load_records(c, d, range(a.seeds), a.seeks)] for d in drives}
+        print("\n" + comparison(before, results))
     if a.modes:
         for d, recs in results.items():
             print(f"\n{d}:\n" + by_mode(recs))
