@@ -132,7 +132,7 @@ class SweepConfig:
         Settle band [track] (the same in tracks at every TPI).
     designer : str
         ``"ocp-robust"`` (default: :class:`seekopt.design.ocp.SeekDesigner` with the default
-        :class:`seekopt.design.ocp.RobustSpec`, what ``seekopt design`` and ``seekopt sweep`` do),
+        :class:`seekopt.design.family.Drift`, what ``seekopt design`` and ``seekopt sweep`` do),
         ``"ocp"`` (the same, nominal), ``"baseline"``
         (:class:`BaselineDesigner`, for testing the machinery) or ``"module:attr"``,
         a factory ``f(plant, controller, imax, settle) -> obj`` with ``obj.design(tracks)``.
