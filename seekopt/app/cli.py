@@ -144,18 +144,57 @@ def cmd_design(args) -> int:
         robust = None if str(args.robust).lower() == "none" else RobustSpec.from_string(args.robust)
     except ValueError as exc:
         raise UsageError(f"--robust: {exc}") from None
+    from seekopt.design.nlp import needs_nlp
+    if needs_nlp(plant):    # input/force effects: the effect-aware NLP (seekopt.design.nlp)
+        return _design_with_effects(args, plant, controller, robust)
+    from seekopt.design.feasibility import StartError, resolve_start
+    try:
+        start = resolve_start(plant, args.tracks, args.start_track, source=args.plant)
+    except StartError as exc:
+        raise UsageError(str(exc)) from None
     try:
         res = SeekDesigner(plant, controller, args.imax, args.settle, robust).design(args.tracks)
     except DesignError as exc:
         print(f"seekopt design: solver failure: {str(exc).splitlines()[0]}", file=sys.stderr)
         return 1
     prof = res.profile
-    prof.meta.update(plant_file=Path(args.plant).name, controller_name=controller.name)
+    prof.meta.update(plant_file=Path(args.plant).name, controller_name=controller.name, start_track=start,
+                     direction="outward" if args.tracks > 0 else "inward")
     prof.to_csv(args.output)
     m = res.metrics
     print(f"wrote {args.output}: {prof.n} samples; {args.tracks:g} tracks, seek {m.seek_time_s * 1e3:.3f} ms, "
           f"seek-settle {m.settle_time_s * 1e3:.3f} ms ({m.ratio_tbb:.2f} T_bb) on the design plant, "
           f"peak current {m.peak_current_a:.3f} A; {res.n_solves} QPs ({res.solver}) in {res.solve_time_s:.3f} s")
+    return 0
+
+
+def _design_with_effects(args, plant, controller, robust) -> int:
+    """``seekopt design`` on a plant with effects: Ipopt over the full closed loop, from ``--start-track``.
+    Every failure (range, a band the loop cannot hold, Ipopt, the full-plant check) is one line, exit 2."""
+    from seekopt.design.feasibility import StartError, resolve_start
+    from seekopt.design.nlp import DesignUnholdable, EffectAwareDesigner, NLPDesignError
+
+    def say(msg):
+        print(f"seekopt design: {msg}", file=sys.stderr, flush=True)
+    try:
+        start = resolve_start(plant, args.tracks, args.start_track, source=args.plant)
+    except StartError as exc:
+        raise UsageError(str(exc)) from None
+    try:
+        res = EffectAwareDesigner(plant, controller, args.imax, args.settle, robust).design(
+            args.tracks, start, progress=say)
+    except (DesignUnholdable, NLPDesignError) as exc:
+        print(f"seekopt design: error: {str(exc).splitlines()[0]}", file=sys.stderr)
+        return 2
+    prof = res.profile
+    prof.meta.update(plant_file=Path(args.plant).name, controller_name=controller.name)
+    prof.to_csv(args.output)
+    m, lm = res.metrics, res.linear_metrics
+    print(f"wrote {args.output}: {prof.n} samples; {args.tracks:g} tracks from track {res.start_track:g} "
+          f"({prof.meta['direction']}), seek-settle {m.settle_time_s * 1e3:.3f} ms ({m.ratio_tbb:.2f} T_bb) on the "
+          f"design plant with its effects ({prof.meta['effects_in_design']}), peak current {m.peak_current_a:.3f} A; "
+          f"linear design there {lm.settle_time_s * 1e3:.3f} ms; {len(res.solves)} NLPs, Ipopt "
+          f"{res.ipopt_iterations} iterations in {res.ipopt_time_s:.2f} s")
     return 0
 
 
@@ -170,6 +209,22 @@ def cmd_bench(args) -> int:
             raise UsageError(f"{name} must be a positive number (got {v})")
     if not math.isfinite(args.tracks) or args.tracks == 0:
         raise UsageError(f"--tracks must be a non-zero number (got {args.tracks})")
+    from seekopt.design.nlp import needs_nlp
+    if needs_nlp(plant):    # effects: played from the start track on the full plant (seekopt.evaluate.effect_bench)
+        from seekopt.design.feasibility import StartError, resolve_start
+        from seekopt.evaluate.effect_bench import run_effect_bench
+        from seekopt.design.ocp import RobustSpec
+        try:
+            start = resolve_start(plant, args.tracks, args.start_track, source=args.plant)
+        except StartError as exc:
+            raise UsageError(str(exc)) from None
+        res = run_effect_bench(plant, controller, args.tracks, args.imax, args.settle, start_track=start,
+                               truth=truth, robust=RobustSpec(),
+                               progress=lambda msg: print(f"seekopt bench: {msg}", file=sys.stderr, flush=True))
+        print(f"design plant {Path(args.plant).name} with its effects; seek from track {start:g}, played on "
+              f"{Path(args.truth).name if args.truth else 'the design plant'} (full plant)")
+        print(format_table(res))
+        return 0
     res = run_bench(plant, controller, args.tracks, args.imax, args.settle, truth=truth, figures=args.figures)
     print(f"design plant {Path(args.plant).name}, evaluated on "
           f"{Path(args.truth).name if args.truth else 'the design plant'}")
@@ -273,6 +328,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="robust design set (default: RobustSpec() -- seek-induced modes +-5 %%, others +-1 %%, "
                         "zeta +-30 %%, gain +-8 %%, delay +-1 us); e.g. freq=5,ofreq=1,zeta=30,gain=8,delay=1e-6,n=15 "
                         "(percent / s); 'none' for a nominal design")
+    s.add_argument("--start-track", type=float, default=None,
+                   help="track the seek starts from (default: middle of the plant's position_range_track; the sign "
+                        "of --tracks gives the direction, negative = inward)")
     s.add_argument("-o", "--output", required=True, help="profile CSV")
     s.set_defaults(func=cmd_design)
 
@@ -284,6 +342,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--imax", type=float, required=True)
     s.add_argument("--settle", type=float, default=0.1)
     s.add_argument("--figures", help="folder for Fig. 9/10-style plots")
+    s.add_argument("--start-track", type=float, default=None,
+                   help="start track of the seek on a plant with effects (default: middle of its fitted range)")
     s.set_defaults(func=cmd_bench)
 
     s = sub.add_parser("loop", help="close the loop: residual analysis and model augmentation")

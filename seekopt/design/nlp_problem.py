@@ -1,0 +1,322 @@
+"""The effect-aware seek NLP: the full closed loop on CasADi symbols, built once per size class.
+
+One servo sample of the 2DOF loop (:func:`closed_loop_sample`)::
+
+    y(k)     = measure(x(k))                              plant (effects, delay line) at the servo rate
+    e(k)     = r(k) - y(k)
+    i(k, l)  = u_ff(k) + u_hold + C_l x_c(k) + D_l e(k)   l = 0..L-1 (lifted controller)
+    x       <- transition(x, hist, i(k, l))               L times: the multirate sub-step hold
+    x_c(k+1) = A x_c(k) + B e(k)
+
+``transition``/``measure`` are the plant's one stepping engine
+(:class:`identification.model.discrete.DiscretePlant`) on CasADi symbols (``casadi_ops``, smoothed
+kinks), ``A, B, C, D`` the controller's :meth:`~seekopt.drive.controller.Controller.lifted_ss` (the
+matrices its runtime steps with).
+
+The NLP for one seek length ``N`` (:class:`SeekNLP`; multiple shooting at the servo rate, every
+variable O(1): states scaled by their warm-start excursion, currents in Imax, PES in bands)::
+
+    min   w_t t^2 + rho |D v|^2 + rho_q |D q|^2 + sum_{k >= N} w_k e_k^2
+    s.t.  z(k+1) = F(z(k), v_k, q_k, i(k))                      state continuity (x = o + s z)
+          i(k, l) = loop current of sample k                    (the loop closed by an equality)
+          e_k = (y(k) - T0 - K) / band
+          e_k + hi_k <= t,  e_k + lo_k >= -t          k >= N     settle band, robust envelope
+          i_lo <= i(k, l) <= i_hi                                total current, robust envelope
+          |G (Imax i - u_hold)| <= hf_tol band                   unmodelled-mode guard (as ocp)
+          v = u_ff / Imax in [-1, 1], q = (r - K) / |K| in [-2, 2], both 0 for k >= N (rest at K)
+
+The plant is driven by the current variables ``i``, so the effects' curvature couples only the
+head's position, velocity and the current: the exact Hessian is sparse and cheap.  ``N``, the
+robust envelopes and the warm start enter as bounds and parameters: the solver is built once.
+
+Robust set (:class:`RobustSpread`): the linear designer's plants differ from the nominal by their
+modes; their PES and currents are the nominal full-plant ones plus the difference of the linear
+loops' responses (first order around the effect-aware trajectory).  The difference is linear in
+``(u_ff, r)``; the designer freezes it at the current design, gives the NLP its envelope over the
+set (``hi_k = max_j d_jk``, ``lo_k = min_j d_jk``, nominal 0 included) and iterates until the
+design meets the band on every plant of the set.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import casadi as ca
+import numpy as np
+
+from identification.model.ops import casadi_ops
+from identification.model.plant import ModalPlant
+
+import seekopt.design.qp as _qp
+
+__all__ = ["NLPSettings", "NLPSolve", "closed_loop_sample", "close_sample", "RobustSpread", "SeekNLP",
+           "BUILD_COUNT"]
+
+#: NLP constructions so far (reuse is visible here, as ``seekopt.design.qp.BUILD_COUNT`` for QPs).
+BUILD_COUNT = {"nlp": 0}
+
+
+@dataclass
+class NLPSettings:
+    """Settings of the effect-aware design (times in s, fractions of band / Imax).
+
+    ``tail_s``: time after the seek carrying band rows in the NLP (the simulator check runs
+    ``check_tail_s``); ``band_margin``/``current_margin``: ``beta``/``gamma`` as in
+    :class:`seekopt.design.ocp.SeekDesigner`; ``hf_*``: its unmodelled-mode guard (on the seek's
+    sub-steps and ``hf_extra`` samples more); ``rho``, ``rho_q``, ``w_e``, ``w_t``: cost weights
+    (smoothness of ``u_ff`` and ``r``, tail energy, worst residual); ``nlp_wall_s``: Ipopt wall-time
+    limit per solve; ``design_wall_s``: for a whole design; ``robust_iter``: passes of the frozen
+    robust envelope per seek length; ``expand``: evaluate the NLP as SX (slower build, ~10x faster
+    derivatives); ``smoothing``: ``identification.model.ops.SmoothingSettings`` for the kinks
+    (None: the engine's default); ``ipopt``: extra Ipopt options."""
+
+    tail_s: float = 0.004
+    band_margin: float = 0.8
+    current_margin: float = 0.97
+    hf_guard: tuple | None = (0.45, 0.65)
+    hf_gain: float = 1.0
+    hf_tol: float = 0.1
+    hf_extra: int = 16
+    rho: float = 1e-2
+    rho_q: float = 1e-3
+    w_e: float = 1.0
+    w_t: float = 10.0
+    max_iter: int = 300
+    tol: float = 1e-7
+    nlp_wall_s: float = 300.0
+    design_wall_s: float = 1800.0
+    check_tail_s: float = 0.015
+    max_samples: int = 512
+    robust_iter: int = 4
+    expand: bool = True
+    smoothing: object = None
+    ipopt: dict = field(default_factory=dict)
+
+
+@dataclass
+class NLPSolve:
+    """One Ipopt call: seek length, status, iterations, wall time [s], worst residual [band]
+    (over the robust set when there is one)."""
+
+    n_seek: int
+    status: str
+    success: bool
+    iterations: int
+    wall_s: float
+    residual: float
+
+    def to_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+# ------------------------------------------------------------------------------- the loop
+def closed_loop_sample(plant: ModalPlant, controller, ops=None) -> tuple:
+    """One servo sample of the 2DOF loop on the full plant as a CasADi ``Function``.
+
+    ``F(x, hist, xc, u, r, t, i) -> (x+, hist+, xc+, y, i_loop)``: plant state and delay line
+    (:class:`DiscretePlant` at the sub-step ``1 / (L fs)``), controller state (lifted), the
+    feedforward current incl. hold ``u`` [A] and the reference ``r`` [track] of the sample, its
+    time ``t`` [s]; ``y`` the measured position at the start of the sample and ``i_loop`` the ``L``
+    sub-step currents the loop commands, ``u + C_l x_c + D_l (r - y)``.  The plant is stepped with
+    the currents ``i`` given as an input: the loop is closed by ``i = i_loop`` (an equality of the
+    NLP, or :func:`close_sample` for simulation).  Returns ``(F, (nx, nh, nc), dp)``.
+    """
+    ops = casadi_ops() if ops is None else ops
+    fs, L = float(controller.sample_rate_hz), int(controller.fast_multiple)
+    dt = 1.0 / (fs * L)
+    dp = plant.discretize(dt)
+    A, B, C, D = (np.asarray(a, dtype=float) for a in controller.lifted_ss())
+    nc = A.shape[0]
+    nx, nh = dp.n, dp.m + 1
+    x0, h0, xc = ca.SX.sym("x", nx), ca.SX.sym("hist", nh), ca.SX.sym("xc", nc)
+    u, r, t, i = ca.SX.sym("u"), ca.SX.sym("r"), ca.SX.sym("t"), ca.SX.sym("i", L)
+    y = dp.measure(x0, t, ops)
+    e = r - y
+    i_loop = u + ca.mtimes(ca.DM(C), xc) + ca.DM(D) * e
+    xcn = ca.mtimes(ca.DM(A), xc) + ca.DM(B) * e
+    x, h = x0, h0
+    for j in range(L):
+        x, h = dp.transition(x, h, i[j], t + j * dt, ops)
+    F = ca.Function("servo_sample", [x0, h0, xc, u, r, t, i], [x, h, xcn, y, i_loop],
+                    ["x", "hist", "xc", "u", "r", "t", "i"], ["x_next", "hist_next", "xc_next", "y", "i_loop"])
+    return F, (nx, nh, nc), dp
+
+
+def close_sample(F) -> ca.Function:
+    """``F`` with the loop closed (``i = i_loop``): ``(x, hist, xc, u, r, t) -> (x+, hist+, xc+, y, i)``."""
+    x, h, xc = (ca.SX.sym(n, F.size1_in(k)) for k, n in enumerate(("x", "hist", "xc")))
+    u, r, t = ca.SX.sym("u"), ca.SX.sym("r"), ca.SX.sym("t")
+    i = F(x, h, xc, u, r, t, ca.SX.zeros(F.size1_in(6)))[4]
+    return ca.Function("closed_sample", [x, h, xc, u, r, t], list(F(x, h, xc, u, r, t, i)[:4]) + [i])
+
+
+# ------------------------------------------------------------------------------- robust set
+class RobustSpread:
+    """The robust set's spread around the nominal loop, for seeks of at most ``nmax`` samples.
+
+    ``maps``: :class:`seekopt.design.qp.LoopMaps` of the set's (linear) plants, nominal first, horizon
+    above ``H``.  :meth:`spread` gives every other plant's PES [band] and sub-step current [Imax]
+    minus the nominal's for scaled ``(v, q)``: ``(dT_u Imax v + dT_r |K| q + K ds_r)``.
+    """
+
+    def __init__(self, maps: list, nmax: int, horizon: int, band: float):
+        N, H = int(nmax), int(horizon)
+        ks = np.arange(H + 1)
+        (Y0u, Y0r, y0), (I0u, I0r, i0) = maps[0].position_rows(ks, N), maps[0].current_rows(H, N)
+        self.DY, self.dy, self.DI, self.di = [], [], [], []
+        for m in maps[1:]:
+            (Yu, Yr, yj), (Iu, Ir, ij) = m.position_rows(ks, N), m.current_rows(H, N)
+            self.DY.append(np.hstack([Yu - Y0u, Yr - Y0r]) / band); self.dy.append((yj - y0) / band)
+            self.DI.append(np.hstack([Iu - I0u, Ir - I0r])); self.di.append(ij - i0)
+        self.n, self.N = len(maps) - 1, N
+
+    def spread(self, v, q, K: float, imax: float):
+        """``(dE (n, H + 1) [band], dI (n, H L) [Imax])`` for scaled feedforward ``v`` and reference ``q``."""
+        w = np.r_[imax * np.asarray(v[:self.N]), abs(K) * np.asarray(q[:self.N])]
+        dE = np.array([D @ w + K * d for D, d in zip(self.DY, self.dy)])
+        dI = np.array([(D @ w + K * d) / imax for D, d in zip(self.DI, self.di)])
+        return dE, dI
+
+
+# ------------------------------------------------------------------------------- the NLP
+class SeekNLP:
+    """The effect-aware seek NLP for seeks of at most ``nmax`` samples (one size class).
+
+    Decision vector ``[v (nmax), q (nmax), t, i (L H), e (H + 1), z (nz x H)]``, ``H = nmax + tail``:
+    scaled feedforward and reference, the worst residual, the sub-step currents [Imax], the PES
+    [band] and the scaled loop states after each sample.  Parameters
+    ``[K, |K|, T0, Imax, u_hold, o (nz), s (nz), w (H + 1)]``: initial (rest) state ``o``, state
+    scale ``s`` (``x = o + s z``), tail-energy weights ``w``.  Built once (``nlpsol``, Ipopt,
+    exact Hessian); :meth:`solve` per ``(K, T0, N)``.
+    """
+
+    def __init__(self, plant: ModalPlant, controller, nmax: int, tail: int, band: float,
+                 settings: NLPSettings):
+        t_build = time.perf_counter()
+        self.settings, self.band = settings, float(band)
+        self.fs, self.L = float(controller.sample_rate_hz), int(controller.fast_multiple)
+        ops = casadi_ops() if settings.smoothing is None else casadi_ops(smooth=settings.smoothing)
+        F, (nx, nh, nc), self.dp = closed_loop_sample(plant, controller, ops)
+        self.dims, nz = (nx, nh, nc), nx + nh + nc
+        N, H, L = int(nmax), int(nmax) + int(tail), self.L
+        self.N, self.H, self.nz = N, H, nz
+        # one scaled servo sample: z -> z+ with x = o + s z (o: rest state at the start, s: scale)
+        zs, os_, ss, isub = ca.SX.sym("z", nz), ca.SX.sym("o", nz), ca.SX.sym("s", nz), ca.SX.sym("i", L)
+        us, rs, ts = ca.SX.sym("u"), ca.SX.sym("r"), ca.SX.sym("t")
+        xs = os_ + ss * zs
+        xn, hn, xcn, ys, il = F(xs[:nx], xs[nx:nx + nh], xs[nx + nh:], us, rs, ts, isub)
+        S = ca.Function("scaled_sample", [zs, us, rs, ts, isub, os_, ss],
+                        [(ca.vertcat(xn, hn, xcn) - os_) / ss, ys, il])
+        meas = ca.Function("measure", [zs, ts, os_, ss], [self.dp.measure(xs[:nx], ts, ops)])
+        Kp, aK, T0, imax, uh = (ca.MX.sym(n) for n in ("K", "absK", "T0", "imax", "uhold"))
+        o, s, w = ca.MX.sym("o", nz), ca.MX.sym("s", nz), ca.MX.sym("w", H + 1)
+        V, Q, tt = ca.MX.sym("v", N), ca.MX.sym("q", N), ca.MX.sym("t")
+        Iv, Ev, Z = ca.MX.sym("i", L * H), ca.MX.sym("e", H + 1), ca.MX.sym("z", nz, H)
+        Zprev = ca.horzcat(ca.MX.zeros(nz, 1), Z[:, :H - 1])
+        U = ca.horzcat(imax * V.T + uh, ca.repmat(uh, 1, H - N))
+        R = ca.horzcat(T0 + Kp + aK * Q.T, ca.repmat(T0 + Kp, 1, H - N))
+        Zn, Y, Iloop = S.map(H)(Zprev, U, R, ca.DM(np.arange(H) / self.fs).T, imax * ca.reshape(Iv, L, H), o, s)
+        yH = meas(Z[:, H - 1], H / self.fs, o, s)
+        rows, self.blocks = [], {}
+
+        def add(name, expr):
+            self.blocks[name] = (sum(r.numel() for r in rows), expr.numel())
+            rows.append(expr)
+
+        add("dyn", ca.vec(Zn - Z))
+        add("pes", Ev - (ca.vertcat(Y.T, yH) - T0 - Kp) / band)
+        add("pes_hi", Ev - tt)
+        add("pes_lo", Ev + tt)
+        add("cur", Iv - ca.vec(Iloop) / imax)                           # (k, l) sample-major
+        if settings.hf_guard:
+            lo, hi = settings.hf_guard
+            nsub = min(H, N + settings.hf_extra) * L
+            G, _ = _qp.hf_guard_matrix(plant.k0, self.fs, L, nsub, lo * self.fs, hi * self.fs,
+                                       settings.hf_gain, spacing_hz=max(self.fs / (2 * N), 50.0))
+            add("hf", ca.mtimes(ca.DM(G), imax * Iv[:nsub] - uh) / band)
+        f = (settings.w_t * tt ** 2 + settings.rho * ca.sumsqr(ca.diff(ca.vertcat(0, V, 0)))
+             + settings.rho_q * ca.sumsqr(ca.diff(ca.vertcat(0, Q, 0))) + ca.dot(w, Ev ** 2))
+        x = ca.vertcat(V, Q, tt, Iv, Ev, ca.vec(Z))
+        p = ca.vertcat(Kp, aK, T0, imax, uh, o, s, w)
+        g = ca.vertcat(*rows)
+        self.nx_dec, self.ng = x.numel(), g.numel()
+        ipopt = {"print_level": 0, "sb": "yes", "max_iter": settings.max_iter, "tol": settings.tol,
+                 "acceptable_tol": 1e-5, "acceptable_iter": 10, "mu_strategy": "adaptive",
+                 "max_wall_time": float(settings.nlp_wall_s), "hessian_approximation": "exact",
+                 "mumps_pivot_order": 2}
+        ipopt.update(settings.ipopt)
+        self.solver = ca.nlpsol("seek_nlp", "ipopt", {"x": x, "f": f, "g": g, "p": p},
+                                {"ipopt": ipopt, "print_time": False, "error_on_fail": False,
+                                 "expand": bool(settings.expand)})
+        # numeric roll-out of the same sample function, loop closed (warm start, scaling, checks)
+        xr, ur = ca.SX.sym("x", nz), ca.SX.sym("u", 3)
+        xn, hn, xcn, yr, ir = close_sample(F)(xr[:nx], xr[nx:nx + nh], xr[nx + nh:], ur[0], ur[1], ur[2])
+        step = ca.Function("loop_step", [xr, ur], [ca.vertcat(xn, hn, xcn), yr, ir])
+        self._rollout = step.mapaccum("rollout", H)
+        self._measure = ca.Function("measure_x", [xr, ur[2]], [self.dp.measure(xr[:nx], ur[2], ops)])
+        BUILD_COUNT["nlp"] += 1
+        self.build_time_s = time.perf_counter() - t_build
+
+    # ------------------------------------------------------------------ per call
+    def rollout(self, x0, v, q, K, T0, imax, uh):
+        """The loop, closed, on the NLP's own model: states ``(nz, H + 1)`` (from ``x0``), PES [band]
+        ``(H + 1,)`` and sub-step currents ``(L, H)`` [A] for scaled inputs ``v, q``."""
+        N, H = self.N, self.H
+        u = np.full(H, uh); u[:N] += imax * np.asarray(v)[:N]
+        r = np.full(H, T0 + K); r[:N] += abs(K) * np.asarray(q)[:N]
+        X, Y, I = self._rollout(x0, np.vstack([u, r, np.arange(H) / self.fs]))
+        X = np.column_stack([x0, np.asarray(X)])
+        yH = float(self._measure(X[:, -1], H / self.fs))
+        return X, (np.r_[np.asarray(Y).ravel(), yH] - T0 - K) / self.band, np.asarray(I)
+
+    def solve(self, K: float, T0: float, nseek: int, imax: float, uh: float, x0: np.ndarray,
+              v0: np.ndarray, q0: np.ndarray, beta: float, gamma: float, envelope=None):
+        """Solve for a seek of ``K`` tracks from ``T0`` in ``nseek`` samples from the warm start
+        ``v0, q0`` (scaled feedforward and reference, length ``nmax``; rolled out for the states).
+
+        ``envelope = (hi_e, lo_e, hi_i, lo_i)``: the robust set's spread (:meth:`RobustSpread.spread`
+        max / min over the set, nominal 0 included) of the PES ``(H + 1,)`` [band] and the currents
+        ``(L H,)`` [Imax].  Returns ``(NLPSolve, v, q)``; ``NLPSolve.residual`` is ``t*`` [band]."""
+        N, H, st = self.N, self.H, self.settings
+        if not 0 < nseek <= N:
+            raise ValueError(f"seek length {nseek} outside 1..{N}")
+        ni, ne = H * self.L, H + 1
+        hi_e, lo_e, hi_i, lo_i = envelope if envelope is not None else (
+            np.zeros(ne), np.zeros(ne), np.zeros(ni), np.zeros(ni))
+        live = (np.arange(N) < nseek).astype(float)
+        v0, q0 = live * np.clip(v0[:N], -1, 1), live * np.clip(q0[:N], -2, 2)
+        X, e0, I0 = self.rollout(x0, v0, q0, K, T0, imax, uh)
+        dev = np.abs(X - x0[:, None])
+        s = np.maximum(dev.max(axis=1), 1e-9 * max(dev.max(), 1e-12))
+        s[0] = max(s[0], abs(K))
+        w = np.zeros(ne); w[nseek:] = st.w_e / (ne - nseek)
+        p = np.r_[K, abs(K), T0, imax, uh, x0, s, w]
+        after = np.arange(ne) >= nseek
+        t0 = float(np.max(np.abs(e0[after]) + np.maximum(hi_e, -lo_e)[after]))
+        xw = np.r_[v0, q0, t0, I0.T.ravel() / imax, e0, ((X[:, 1:] - x0[:, None]) / s[:, None]).T.ravel()]
+        nz_all = self.nz * H
+        lbx = np.r_[-1.0 * live, -2.0 * live, 0.0, -gamma - lo_i, np.full(ne + nz_all, -np.inf)]
+        ubx = np.r_[1.0 * live, 2.0 * live, np.inf, gamma - hi_i, np.full(ne + nz_all, np.inf)]
+        lbg, ubg = np.full(self.ng, -np.inf), np.full(self.ng, np.inf)
+        for name, (off, n) in self.blocks.items():
+            sl = slice(off, off + n)
+            if name in ("dyn", "pes", "cur"):
+                lbg[sl] = ubg[sl] = 0.0
+            elif name == "pes_hi":                      # e + hi <= t after the seek
+                ubg[sl] = np.where(after, -hi_e, np.inf)
+            elif name == "pes_lo":                      # e + lo >= -t after the seek
+                lbg[sl] = np.where(after, -lo_e, -np.inf)
+            elif name == "hf":
+                lbg[sl], ubg[sl] = -st.hf_tol, st.hf_tol
+        t_start = time.perf_counter()
+        sol = self.solver(x0=xw, p=p, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+        wall = time.perf_counter() - t_start
+        stats = self.solver.stats()
+        xo = np.asarray(sol["x"], dtype=float).ravel()
+        status = str(stats.get("return_status", "?"))
+        ok = (bool(stats.get("success", False)) or status == "Solved_To_Acceptable_Level") \
+            and bool(np.all(np.isfinite(xo)))
+        rec = NLPSolve(int(nseek), status, ok, int(stats.get("iter_count", 0)), wall,
+                       float(xo[2 * N]) if ok else math.inf)
+        return rec, xo[:N], xo[N:2 * N]
