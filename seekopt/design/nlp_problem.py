@@ -66,8 +66,9 @@ class NLPSettings:
     :class:`seekopt.design.ocp.SeekDesigner`; ``hf_*``: its unmodelled-mode guard (on the seek's
     sub-steps and ``hf_extra`` samples more); ``rho``, ``rho_q``, ``w_e``, ``w_t``: cost weights
     (smoothness of ``u_ff`` and ``r``, tail energy, worst residual); ``nlp_wall_s``: Ipopt wall-time
-    limit per solve; ``design_wall_s``: for a whole design; ``robust_iter``: passes of the frozen
-    robust envelope per seek length; ``expand``: evaluate the NLP as SX (slower build, ~10x faster
+    limit per solve; ``design_wall_s``: for a whole design; ``kappa_band``, ``kappa_current``:
+    sharpness of the smooth maximum over the robust set (log-sum-exp, over-estimates the maximum by
+    at most ``log(n) / kappa``: 0.02 band and 0.005 Imax for 22 plants); ``expand``: evaluate the NLP as SX (slower build, ~10x faster
     derivatives); ``smoothing``: ``identification.model.ops.SmoothingSettings`` for the kinks
     (None: the engine's default); ``ipopt``: extra Ipopt options."""
 
@@ -88,7 +89,8 @@ class NLPSettings:
     design_wall_s: float = 1800.0
     check_tail_s: float = 0.015
     max_samples: int = 512
-    robust_iter: int = 4
+    kappa_band: float = 150.0
+    kappa_current: float = 600.0
     expand: bool = True
     smoothing: object = None
     ipopt: dict = field(default_factory=dict)
@@ -156,11 +158,12 @@ class RobustSpread:
     """The robust set's spread around the nominal loop, for seeks of at most ``nmax`` samples.
 
     ``maps``: :class:`seekopt.design.qp.LoopMaps` of the set's (linear) plants, nominal first, horizon
-    above ``H``.  :meth:`spread` gives every other plant's PES [band] and sub-step current [Imax]
-    minus the nominal's for scaled ``(v, q)``: ``(dT_u Imax v + dT_r |K| q + K ds_r)``.
+    above ``horizon``.  Every other plant's PES [band] and sub-step current [Imax] minus the nominal's
+    is linear in the scaled ``(v, q)``: ``dT_u Imax v + dT_r |K| q + K ds_r``.  Band rows of the NLP on
+    the samples ``band_samples`` (:meth:`band_rows`); :meth:`spread` for checks and the current envelope.
     """
 
-    def __init__(self, maps: list, nmax: int, horizon: int, band: float):
+    def __init__(self, maps: list, nmax: int, horizon: int, band: float, nmax_prev: int = 0):
         N, H = int(nmax), int(horizon)
         ks = np.arange(H + 1)
         (Y0u, Y0r, y0), (I0u, I0r, i0) = maps[0].position_rows(ks, N), maps[0].current_rows(H, N)
@@ -170,6 +173,21 @@ class RobustSpread:
             self.DY.append(np.hstack([Yu - Y0u, Yr - Y0r]) / band); self.dy.append((yj - y0) / band)
             self.DI.append(np.hstack([Iu - I0u, Ir - I0r])); self.di.append(ij - i0)
         self.n, self.N = len(maps) - 1, N
+        # robust rows of the NLP: samples that can follow a seek of this class (k > nmax_prev), every
+        # sample up to nmax + 32, every 2nd to nmax + 64, every 4th after (the slow closed-loop tail;
+        # the spread is re-checked on every sample and the simulator plays every sample); currents on
+        # every sub-step of the seek and 8 samples more (as the linear designer)
+        kb = np.concatenate([np.arange(nmax_prev + 1, N + 32), np.arange(N + 32, N + 64, 2),
+                             np.arange(N + 64, H + 1, 4)])
+        self.band_samples = np.unique(kb[(kb <= H) & (kb > nmax_prev)]).astype(int)
+        self.current_substeps = np.arange(min(H, N + 8) * maps[0].L)
+
+    def rows(self):
+        """``(DY, dy, DI, di)``: the spread on the robust rows, plant-major ``(n, rows, 2N)`` / ``(n, rows)``
+        ([band] and [A])."""
+        kb, kc = self.band_samples, self.current_substeps
+        return (np.stack([D[kb] for D in self.DY]), np.stack([d[kb] for d in self.dy]),
+                np.stack([D[kc] for D in self.DI]), np.stack([d[kc] for d in self.di]))
 
     def spread(self, v, q, K: float, imax: float):
         """``(dE (n, H + 1) [band], dI (n, H L) [Imax])`` for scaled feedforward ``v`` and reference ``q``."""
@@ -183,16 +201,25 @@ class RobustSpread:
 class SeekNLP:
     """The effect-aware seek NLP for seeks of at most ``nmax`` samples (one size class).
 
-    Decision vector ``[v (nmax), q (nmax), t, i (L H), e (H + 1), z (nz x H)]``, ``H = nmax + tail``:
-    scaled feedforward and reference, the worst residual, the sub-step currents [Imax], the PES
-    [band] and the scaled loop states after each sample.  Parameters
-    ``[K, |K|, T0, Imax, u_hold, o (nz), s (nz), w (H + 1)]``: initial (rest) state ``o``, state
-    scale ``s`` (``x = o + s z``), tail-energy weights ``w``.  Built once (``nlpsol``, Ipopt,
-    exact Hessian); :meth:`solve` per ``(K, T0, N)``.
+    Condensed like the linear QP (:class:`seekopt.design.qp.SeekQP`): the decision vector is
+    ``[v (nmax), q (nmax), t]`` (feedforward [Imax], reference offset [|K|], worst residual [band]);
+    the PES and sub-step currents over ``H = nmax + tail`` samples are those of the nominal
+    full-plant loop rolled out from the rest state (``mapaccum`` of the servo-sample function; the
+    closed loop is stable, so single shooting is well conditioned).  Parameters
+    ``[K, |K|, T0, Imax, u_hold, x0, w (H + 1)]`` (``w``: tail-energy weights).  Built once
+    (``nlpsol``, Ipopt, exact Hessian) and called per ``(K, T0, N)``.
+
+    ``spread`` (:class:`RobustSpread`): the robust set, every plant ``j`` on its rows through one smooth
+    maximum per row (``smax_j s = log(sum_j exp(kappa s_j)) / kappa``, nominal ``s_0 = 0``)::
+
+        e_k + smax_j s_jk <= t,   -e_k + smax_j (-s_jk) <= t,   |i| + smax_j (+-di_j) <= gamma
+
+    with ``s_jk = D_jk [Imax v; |K| q] + K d_jk`` linear: two rows per sample whatever the set's
+    size (a row per plant and sample made Ipopt's dense KKT 5-10 times slower).
     """
 
     def __init__(self, plant: ModalPlant, controller, nmax: int, tail: int, band: float,
-                 settings: NLPSettings):
+                 settings: NLPSettings, spread: "RobustSpread | None" = None):
         t_build = time.perf_counter()
         self.settings, self.band = settings, float(band)
         self.fs, self.L = float(controller.sample_rate_hz), int(controller.fast_multiple)
@@ -201,66 +228,74 @@ class SeekNLP:
         self.dims, nz = (nx, nh, nc), nx + nh + nc
         N, H, L = int(nmax), int(nmax) + int(tail), self.L
         self.N, self.H, self.nz = N, H, nz
-        # one scaled servo sample: z -> z+ with x = o + s z (o: rest state at the start, s: scale)
-        zs, os_, ss, isub = ca.SX.sym("z", nz), ca.SX.sym("o", nz), ca.SX.sym("s", nz), ca.SX.sym("i", L)
-        us, rs, ts = ca.SX.sym("u"), ca.SX.sym("r"), ca.SX.sym("t")
-        xs = os_ + ss * zs
-        xn, hn, xcn, ys, il = F(xs[:nx], xs[nx:nx + nh], xs[nx + nh:], us, rs, ts, isub)
-        S = ca.Function("scaled_sample", [zs, us, rs, ts, isub, os_, ss],
-                        [(ca.vertcat(xn, hn, xcn) - os_) / ss, ys, il])
-        meas = ca.Function("measure", [zs, ts, os_, ss], [self.dp.measure(xs[:nx], ts, ops)])
-        Kp, aK, T0, imax, uh = (ca.MX.sym(n) for n in ("K", "absK", "T0", "imax", "uhold"))
-        o, s, w = ca.MX.sym("o", nz), ca.MX.sym("s", nz), ca.MX.sym("w", H + 1)
-        V, Q, tt = ca.MX.sym("v", N), ca.MX.sym("q", N), ca.MX.sym("t")
-        Iv, Ev, Z = ca.MX.sym("i", L * H), ca.MX.sym("e", H + 1), ca.MX.sym("z", nz, H)
-        Zprev = ca.horzcat(ca.MX.zeros(nz, 1), Z[:, :H - 1])
-        U = ca.horzcat(imax * V.T + uh, ca.repmat(uh, 1, H - N))
-        R = ca.horzcat(T0 + Kp + aK * Q.T, ca.repmat(T0 + Kp, 1, H - N))
-        Zn, Y, Iloop = S.map(H)(Zprev, U, R, ca.DM(np.arange(H) / self.fs).T, imax * ca.reshape(Iv, L, H), o, s)
-        yH = meas(Z[:, H - 1], H / self.fs, o, s)
-        rows, self.blocks = [], {}
-
-        def add(name, expr):
-            self.blocks[name] = (sum(r.numel() for r in rows), expr.numel())
-            rows.append(expr)
-
-        add("dyn", ca.vec(Zn - Z))
-        add("pes", Ev - (ca.vertcat(Y.T, yH) - T0 - Kp) / band)
-        add("pes_hi", Ev - tt)
-        add("pes_lo", Ev + tt)
-        add("cur", Iv - ca.vec(Iloop) / imax)                           # (k, l) sample-major
-        if settings.hf_guard:
-            lo, hi = settings.hf_guard
-            nsub = min(H, N + settings.hf_extra) * L
-            G, _ = _qp.hf_guard_matrix(plant.k0, self.fs, L, nsub, lo * self.fs, hi * self.fs,
-                                       settings.hf_gain, spacing_hz=max(self.fs / (2 * N), 50.0))
-            add("hf", ca.mtimes(ca.DM(G), imax * Iv[:nsub] - uh) / band)
-        f = (settings.w_t * tt ** 2 + settings.rho * ca.sumsqr(ca.diff(ca.vertcat(0, V, 0)))
-             + settings.rho_q * ca.sumsqr(ca.diff(ca.vertcat(0, Q, 0))) + ca.dot(w, Ev ** 2))
-        x = ca.vertcat(V, Q, tt, Iv, Ev, ca.vec(Z))
-        p = ca.vertcat(Kp, aK, T0, imax, uh, o, s, w)
-        g = ca.vertcat(*rows)
-        self.nx_dec, self.ng = x.numel(), g.numel()
-        ipopt = {"print_level": 0, "sb": "yes", "max_iter": settings.max_iter, "tol": settings.tol,
-                 "acceptable_tol": 1e-5, "acceptable_iter": 10, "mu_strategy": "adaptive",
-                 "max_wall_time": float(settings.nlp_wall_s), "hessian_approximation": "exact",
-                 "mumps_pivot_order": 2}
-        ipopt.update(settings.ipopt)
-        self.solver = ca.nlpsol("seek_nlp", "ipopt", {"x": x, "f": f, "g": g, "p": p},
-                                {"ipopt": ipopt, "print_time": False, "error_on_fail": False,
-                                 "expand": bool(settings.expand)})
-        # numeric roll-out of the same sample function, loop closed (warm start, scaling, checks)
         xr, ur = ca.SX.sym("x", nz), ca.SX.sym("u", 3)
         xn, hn, xcn, yr, ir = close_sample(F)(xr[:nx], xr[nx:nx + nh], xr[nx + nh:], ur[0], ur[1], ur[2])
         step = ca.Function("loop_step", [xr, ur], [ca.vertcat(xn, hn, xcn), yr, ir])
         self._rollout = step.mapaccum("rollout", H)
         self._measure = ca.Function("measure_x", [xr, ur[2]], [self.dp.measure(xr[:nx], ur[2], ops)])
+        Kp, aK, T0, imax, uh = (ca.MX.sym(n) for n in ("K", "absK", "T0", "imax", "uhold"))
+        x0, w = ca.MX.sym("x0", nz), ca.MX.sym("w", H + 1)
+        V, Q, tt = ca.MX.sym("v", N), ca.MX.sym("q", N), ca.MX.sym("t")
+        U = ca.vertcat(ca.horzcat(imax * V.T + uh, ca.repmat(uh, 1, H - N)),
+                       ca.horzcat(T0 + Kp + aK * Q.T, ca.repmat(T0 + Kp, 1, H - N)),
+                       ca.DM(np.arange(H) / self.fs).T)
+        X, Y, Iloop = self._rollout(x0, U)
+        E = (ca.vertcat(Y.T, self._measure(X[:, H - 1], H / self.fs)) - T0 - Kp) / band   # PES [band]
+        I = ca.vec(Iloop) / imax                                     # sub-step currents [Imax], (k, l)
+        rows, self.blocks = [], {}
+
+        def add(name, expr, samples=None):
+            self.blocks[name] = (sum(r.numel() for r in rows), expr.numel(),
+                                 np.arange(expr.numel()) if samples is None else np.asarray(samples, int))
+            rows.append(expr)
+
+        add("pes_hi", E - tt)
+        add("pes_lo", E + tt)
+        add("cur", I)
+        if settings.hf_guard:
+            lo, hi = settings.hf_guard
+            nsub = min(H, N + settings.hf_extra) * L
+            G, _ = _qp.hf_guard_matrix(plant.k0, self.fs, L, nsub, lo * self.fs, hi * self.fs,
+                                       settings.hf_gain, spacing_hz=max(self.fs / (2 * N), 50.0))
+            add("hf", ca.mtimes(ca.DM(G), imax * I[:nsub] - uh) / band)
+        if spread is not None and spread.n:     # every plant of the set: smooth max over the set per row
+            DY, dy, DI, di = spread.rows()
+            wy = ca.vertcat(imax * V, aK * Q)
+            kb, kc = spread.band_samples, spread.current_substeps
+            for name, D, d, base, kap, scale in (("rob_e", DY, dy, E[kb.tolist()], settings.kappa_band, 1.0),
+                                                 ("rob_i", DI, di, I[kc.tolist()], settings.kappa_current, imax)):
+                n, m = D.shape[0], D.shape[1]
+                Sp = ca.reshape(ca.mtimes(ca.DM(D.reshape(n * m, -1, order="C")), wy) + Kp * ca.DM(d.ravel()),
+                                m, n).T / scale                       # (plants, rows)
+                Sp = ca.vertcat(ca.MX.zeros(1, m), Sp)                # the nominal plant: spread 0
+                xs = ca.SX.sym("s", n + 1)
+                lse = ca.Function("smooth_max", [xs], [ca.logsumexp(kap * xs) / kap]).map(m)
+                up, dn = lse(Sp).T, lse(-Sp).T
+                if name == "rob_e":
+                    add("rob_hi", base + up - tt, kb)                # e + max_j s_j <= t
+                    add("rob_lo", -base + dn - tt, kb)               # -e + max_j (-s_j) <= t
+                else:
+                    add("rob_ihi", base + up, kc)                    # i + max_j di_j <= gamma
+                    add("rob_ilo", -base + dn, kc)
+        f = (settings.w_t * tt ** 2 + settings.rho * ca.sumsqr(ca.diff(ca.vertcat(0, V, 0)))
+             + settings.rho_q * ca.sumsqr(ca.diff(ca.vertcat(0, Q, 0))) + ca.dot(w, E ** 2))
+        x = ca.vertcat(V, Q, tt)
+        p = ca.vertcat(Kp, aK, T0, imax, uh, x0, w)
+        g = ca.vertcat(*rows)
+        self.nx_dec, self.ng = x.numel(), g.numel()
+        ipopt = {"print_level": 0, "sb": "yes", "max_iter": settings.max_iter, "tol": settings.tol,
+                 "acceptable_tol": 1e-5, "acceptable_iter": 10, "mu_strategy": "adaptive",
+                 "max_wall_time": float(settings.nlp_wall_s), "hessian_approximation": "exact"}
+        ipopt.update(settings.ipopt)
+        self.solver = ca.nlpsol("seek_nlp", "ipopt", {"x": x, "f": f, "g": g, "p": p},
+                                {"ipopt": ipopt, "print_time": False, "error_on_fail": False,
+                                 "expand": bool(settings.expand)})
         BUILD_COUNT["nlp"] += 1
         self.build_time_s = time.perf_counter() - t_build
 
     # ------------------------------------------------------------------ per call
     def rollout(self, x0, v, q, K, T0, imax, uh):
-        """The loop, closed, on the NLP's own model: states ``(nz, H + 1)`` (from ``x0``), PES [band]
+        """The loop on the NLP's own model: states ``(nz, H + 1)`` (from ``x0``), PES [band]
         ``(H + 1,)`` and sub-step currents ``(L, H)`` [A] for scaled inputs ``v, q``."""
         N, H = self.N, self.H
         u = np.full(H, uh); u[:N] += imax * np.asarray(v)[:N]
@@ -271,42 +306,31 @@ class SeekNLP:
         return X, (np.r_[np.asarray(Y).ravel(), yH] - T0 - K) / self.band, np.asarray(I)
 
     def solve(self, K: float, T0: float, nseek: int, imax: float, uh: float, x0: np.ndarray,
-              v0: np.ndarray, q0: np.ndarray, beta: float, gamma: float, envelope=None):
-        """Solve for a seek of ``K`` tracks from ``T0`` in ``nseek`` samples from the warm start
-        ``v0, q0`` (scaled feedforward and reference, length ``nmax``; rolled out for the states).
-
-        ``envelope = (hi_e, lo_e, hi_i, lo_i)``: the robust set's spread (:meth:`RobustSpread.spread`
-        max / min over the set, nominal 0 included) of the PES ``(H + 1,)`` [band] and the currents
-        ``(L H,)`` [Imax].  Returns ``(NLPSolve, v, q)``; ``NLPSolve.residual`` is ``t*`` [band]."""
+              v0: np.ndarray, q0: np.ndarray, beta: float, gamma: float):
+        """Solve for a seek of ``K`` tracks from ``T0`` in ``nseek`` samples from ``v0, q0`` (scaled
+        feedforward and reference, length ``nmax``).  Returns ``(NLPSolve, v, q)``; ``NLPSolve.residual`` is ``t*`` [band]."""
         N, H, st = self.N, self.H, self.settings
         if not 0 < nseek <= N:
             raise ValueError(f"seek length {nseek} outside 1..{N}")
-        ni, ne = H * self.L, H + 1
-        hi_e, lo_e, hi_i, lo_i = envelope if envelope is not None else (
-            np.zeros(ne), np.zeros(ne), np.zeros(ni), np.zeros(ni))
         live = (np.arange(N) < nseek).astype(float)
         v0, q0 = live * np.clip(v0[:N], -1, 1), live * np.clip(q0[:N], -2, 2)
-        X, e0, I0 = self.rollout(x0, v0, q0, K, T0, imax, uh)
-        dev = np.abs(X - x0[:, None])
-        s = np.maximum(dev.max(axis=1), 1e-9 * max(dev.max(), 1e-12))
-        s[0] = max(s[0], abs(K))
+        ne = H + 1
         w = np.zeros(ne); w[nseek:] = st.w_e / (ne - nseek)
-        p = np.r_[K, abs(K), T0, imax, uh, x0, s, w]
-        after = np.arange(ne) >= nseek
-        t0 = float(np.max(np.abs(e0[after]) + np.maximum(hi_e, -lo_e)[after]))
-        xw = np.r_[v0, q0, t0, I0.T.ravel() / imax, e0, ((X[:, 1:] - x0[:, None]) / s[:, None]).T.ravel()]
-        nz_all = self.nz * H
-        lbx = np.r_[-1.0 * live, -2.0 * live, 0.0, -gamma - lo_i, np.full(ne + nz_all, -np.inf)]
-        ubx = np.r_[1.0 * live, 2.0 * live, np.inf, gamma - hi_i, np.full(ne + nz_all, np.inf)]
+        p = np.r_[K, abs(K), T0, imax, uh, x0, w]
+        _, e0, _ = self.rollout(x0, v0, q0, K, T0, imax, uh)
+        xw = np.r_[v0, q0, float(np.max(np.abs(e0[nseek:])))]
+        lbx, ubx = np.r_[-1.0 * live, -2.0 * live, 0.0], np.r_[1.0 * live, 2.0 * live, np.inf]
         lbg, ubg = np.full(self.ng, -np.inf), np.full(self.ng, np.inf)
-        for name, (off, n) in self.blocks.items():
+        for name, (off, n, smp) in self.blocks.items():
             sl = slice(off, off + n)
-            if name in ("dyn", "pes", "cur"):
-                lbg[sl] = ubg[sl] = 0.0
-            elif name == "pes_hi":                      # e + hi <= t after the seek
-                ubg[sl] = np.where(after, -hi_e, np.inf)
-            elif name == "pes_lo":                      # e + lo >= -t after the seek
-                lbg[sl] = np.where(after, -lo_e, -np.inf)
+            if name in ("pes_hi", "rob_hi", "rob_lo"):  # ... - t <= 0 after the seek
+                ubg[sl] = np.where(smp >= nseek, 0.0, np.inf)
+            elif name == "pes_lo":                      # e + t >= 0 after the seek
+                lbg[sl] = np.where(smp >= nseek, 0.0, -np.inf)
+            elif name == "cur":
+                lbg[sl], ubg[sl] = -gamma, gamma
+            elif name in ("rob_ihi", "rob_ilo"):
+                ubg[sl] = gamma
             elif name == "hf":
                 lbg[sl], ubg[sl] = -st.hf_tol, st.hf_tol
         t_start = time.perf_counter()
