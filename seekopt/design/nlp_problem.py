@@ -72,7 +72,7 @@ class NLPSettings:
     derivatives); ``smoothing``: ``identification.model.ops.SmoothingSettings`` for the kinks
     (None: the engine's default); ``ipopt``: extra Ipopt options."""
 
-    tail_s: float = 0.004
+    tail_s: float = 0.003
     band_margin: float = 0.8
     current_margin: float = 0.97
     hf_guard: tuple | None = (0.45, 0.65)
@@ -89,11 +89,13 @@ class NLPSettings:
     design_wall_s: float = 1800.0
     check_tail_s: float = 0.015
     max_samples: int = 512
+    reference_knots: int = 12
     kappa_band: float = 150.0
     kappa_current: float = 600.0
     expand: bool = True
     smoothing: object = None
     ipopt: dict = field(default_factory=dict)
+    nlpsol: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -202,11 +204,14 @@ class SeekNLP:
     """The effect-aware seek NLP for seeks of at most ``nmax`` samples (one size class).
 
     Condensed like the linear QP (:class:`seekopt.design.qp.SeekQP`): the decision vector is
-    ``[v (nmax), q (nmax), t]`` (feedforward [Imax], reference offset [|K|], worst residual [band]);
+    ``[v (nmax), c (nb), t]``: the feedforward [Imax], the reference offset ``q = (r - K) / |K| =
+    q_base + B c`` (the warm start's reference plus a smooth correction on ``nb = reference_knots``
+    piecewise-linear hats over the seek) and the worst residual [band];
     the PES and sub-step currents over ``H = nmax + tail`` samples are those of the nominal
     full-plant loop rolled out from the rest state (``mapaccum`` of the servo-sample function; the
     closed loop is stable, so single shooting is well conditioned).  Parameters
-    ``[K, |K|, T0, Imax, u_hold, x0, w (H + 1)]`` (``w``: tail-energy weights).  Built once
+    ``[K, |K|, T0, Imax, u_hold, x0, w (H + 1), q_base (nmax), B (nmax x nb)]`` (``w``: tail-energy
+    weights).  Built once
     (``nlpsol``, Ipopt, exact Hessian) and called per ``(K, T0, N)``.
 
     ``spread`` (:class:`RobustSpread`): the robust set, every plant ``j`` on its rows through one smooth
@@ -235,7 +240,10 @@ class SeekNLP:
         self._measure = ca.Function("measure_x", [xr, ur[2]], [self.dp.measure(xr[:nx], ur[2], ops)])
         Kp, aK, T0, imax, uh = (ca.MX.sym(n) for n in ("K", "absK", "T0", "imax", "uhold"))
         x0, w = ca.MX.sym("x0", nz), ca.MX.sym("w", H + 1)
-        V, Q, tt = ca.MX.sym("v", N), ca.MX.sym("q", N), ca.MX.sym("t")
+        nb = self.nb = min(N, int(settings.reference_knots))
+        V, C, tt = ca.MX.sym("v", N), ca.MX.sym("c", nb), ca.MX.sym("t")
+        qb, Bq = ca.MX.sym("q_base", N), ca.MX.sym("B", N, nb)
+        Q = qb + ca.mtimes(Bq, C)             # reference offset: a base plus a smooth correction
         U = ca.vertcat(ca.horzcat(imax * V.T + uh, ca.repmat(uh, 1, H - N)),
                        ca.horzcat(T0 + Kp + aK * Q.T, ca.repmat(T0 + Kp, 1, H - N)),
                        ca.DM(np.arange(H) / self.fs).T)
@@ -279,8 +287,8 @@ class SeekNLP:
                     add("rob_ilo", -base + dn, kc)
         f = (settings.w_t * tt ** 2 + settings.rho * ca.sumsqr(ca.diff(ca.vertcat(0, V, 0)))
              + settings.rho_q * ca.sumsqr(ca.diff(ca.vertcat(0, Q, 0))) + ca.dot(w, E ** 2))
-        x = ca.vertcat(V, Q, tt)
-        p = ca.vertcat(Kp, aK, T0, imax, uh, x0, w)
+        x = ca.vertcat(V, C, tt)
+        p = ca.vertcat(Kp, aK, T0, imax, uh, x0, w, qb, ca.vec(Bq))
         g = ca.vertcat(*rows)
         self.nx_dec, self.ng = x.numel(), g.numel()
         ipopt = {"print_level": 0, "sb": "yes", "max_iter": settings.max_iter, "tol": settings.tol,
@@ -289,7 +297,7 @@ class SeekNLP:
         ipopt.update(settings.ipopt)
         self.solver = ca.nlpsol("seek_nlp", "ipopt", {"x": x, "f": f, "g": g, "p": p},
                                 {"ipopt": ipopt, "print_time": False, "error_on_fail": False,
-                                 "expand": bool(settings.expand)})
+                                 "expand": bool(settings.expand), **settings.nlpsol})
         BUILD_COUNT["nlp"] += 1
         self.build_time_s = time.perf_counter() - t_build
 
@@ -318,8 +326,10 @@ class SeekNLP:
         w = np.zeros(ne); w[nseek:] = st.w_e / (ne - nseek)
         p = np.r_[K, abs(K), T0, imax, uh, x0, w]
         _, e0, _ = self.rollout(x0, v0, q0, K, T0, imax, uh)
-        xw = np.r_[v0, q0, float(np.max(np.abs(e0[nseek:])))]
-        lbx, ubx = np.r_[-1.0 * live, -2.0 * live, 0.0], np.r_[1.0 * live, 2.0 * live, np.inf]
+        B = _hat_basis(nseek, N, self.nb)
+        p = np.r_[p, q0, B.T.ravel()]
+        xw = np.r_[v0, np.zeros(self.nb), float(np.max(np.abs(e0[nseek:])))]
+        lbx, ubx = np.r_[-1.0 * live, np.full(self.nb, -np.inf), 0.0], np.r_[1.0 * live, np.full(self.nb, np.inf), np.inf]
         lbg, ubg = np.full(self.ng, -np.inf), np.full(self.ng, np.inf)
         for name, (off, n, smp) in self.blocks.items():
             sl = slice(off, off + n)
@@ -342,5 +352,17 @@ class SeekNLP:
         ok = (bool(stats.get("success", False)) or status == "Solved_To_Acceptable_Level") \
             and bool(np.all(np.isfinite(xo)))
         rec = NLPSolve(int(nseek), status, ok, int(stats.get("iter_count", 0)), wall,
-                       float(xo[2 * N]) if ok else math.inf)
-        return rec, xo[:N], xo[N:2 * N]
+                       float(xo[N + self.nb]) if ok else math.inf)
+        return rec, xo[:N], q0 + B @ xo[N:N + self.nb]
+
+
+def _hat_basis(n: int, nmax: int, nb: int) -> np.ndarray:
+    """``(nmax, nb)`` piecewise-linear hat functions on ``nb`` knots spread over samples ``0..n-1``
+    (zero from ``n`` on): the smooth correction of the reference."""
+    k = np.arange(nmax, dtype=float)
+    knots = np.linspace(0.0, n - 1.0, nb) if nb > 1 else np.array([0.0])
+    h = (knots[1] - knots[0]) if nb > 1 else 1.0
+    B = np.maximum(0.0, 1.0 - np.abs(k[:, None] - knots[None, :]) / h)
+    B[n:] = 0.0
+    return B
+
