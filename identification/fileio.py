@@ -31,6 +31,7 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
     ------
     OSError
         If the file system refuses; ``path`` is then untouched and no temporary file is left.
+        Its ``filename`` is ``path`` (never the temporary file's name).
     """
     name = os.fsdecode(os.fspath(path))
     folder = os.path.dirname(os.path.abspath(name))
@@ -40,14 +41,20 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
         umask = os.umask(0)
         os.umask(umask)
         mode = 0o666 & ~umask
-    fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{os.path.basename(name)}.", suffix=".tmp")
+    try:
+        fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{os.path.basename(name)}.", suffix=".tmp")
+    except OSError as exc:     # name the user's file, not the temporary one
+        raise type(exc)(exc.errno, exc.strerror, name) from None
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
             fh.flush()
             os.fsync(fh.fileno())
         os.chmod(tmp, mode)
-        os.replace(tmp, name)
+        try:
+            os.replace(tmp, name)
+        except OSError as exc:
+            raise type(exc)(exc.errno, exc.strerror, name) from None
     except BaseException:
         with contextlib.suppress(OSError):
             os.unlink(tmp)

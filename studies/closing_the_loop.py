@@ -37,7 +37,8 @@ if str(ROOT) not in sys.path:
 
 from identification.loop.closing import close_loop, evaluate  # noqa: E402
 from identification.model.effects import Effect  # noqa: E402
-from identification.loop.report import FIGURES, figures, markdown  # noqa: E402
+from identification.loop.figures import FIGURES, figures  # noqa: E402
+from identification.loop.report import markdown  # noqa: E402
 from identification.model.plant import Mode, atomic_write_text  # noqa: E402
 from seekopt.drive.presets import default_truth_plant  # noqa: E402
 from seekopt.evaluate.synth import SynthConfig, synthesize  # noqa: E402

@@ -22,11 +22,13 @@ import sys
 import numpy as np
 
 try:
-    from identification.estimate.prony import (crb_modes, damped_sinusoid, ls_prony, matrix_pencil, refine_poles, snr_db,
+    from identification.estimate.pencil import matrix_pencil
+    from identification.estimate.prony import (crb_modes, damped_sinusoid, ls_prony, refine_poles, snr_db,
                                       z_to_modal)
 except ImportError:  # run as a script from anywhere
     sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    from identification.estimate.prony import (crb_modes, damped_sinusoid, ls_prony, matrix_pencil, refine_poles, snr_db,
+    from identification.estimate.pencil import matrix_pencil
+    from identification.estimate.prony import (crb_modes, damped_sinusoid, ls_prony, refine_poles, snr_db,
                                       z_to_modal)
 
 FS = 26_400.0
@@ -184,7 +186,7 @@ def _pct(x, nd=2):
 def _e2e_log(seed, n_seeks, drive, cache_dir):
     """Synthesise (or load from ``cache_dir``) a log of the default truth; returns ((log, truth), seconds)."""
     import time
-    from identification.logs.seeklog import read_log, write_log
+    from identification.logs import read_log, write_log
     from identification.model.plant import ModalPlant
     from seekopt.drive.presets import nss_controller_single_rate
     from seekopt.evaluate.synth import SynthConfig, synthesize

@@ -4,7 +4,7 @@ Run::
 
     python studies/solver_reuse.py
 
-1. Reuse: one :class:`seekopt.design.ocp.SeekDesigner` (closed-loop maps, condensed matrices converted to
+1. Reuse: one :class:`seekopt.design.designer.SeekDesigner` (closed-loop maps, condensed matrices converted to
    ``casadi.DM`` and the ``casadi.conic`` solver built once per seek-size class) designs a list of
    seeks; naive: a new designer (everything rebuilt) per seek.  Same answers, wall time per design.
 2. Solvers on the designer's own condensed QP (a bisection sequence of the K = 200 design, nominal
@@ -30,10 +30,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from seekopt.design import qp as qpmod  # noqa: E402
+from seekopt.design import solvers as qpmod  # noqa: E402
+from seekopt.design.designer import SeekDesigner  # noqa: E402
+from seekopt.design.problem import SeekProblem  # noqa: E402
 from seekopt.evaluate.bench import perturbed_plant  # noqa: E402
 from seekopt.drive.controller import Controller  # noqa: E402
-from seekopt.design.ocp import SeekDesigner  # noqa: E402
 from seekopt.drive.presets import default_truth_plant  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "studies"))
@@ -50,25 +51,28 @@ def timed(f):
 
 
 def reuse_vs_rebuild(plant, ctrl, robust=None):
-    d = SeekDesigner(plant, ctrl, IMAX, robust=robust)
-    b0 = sum(qpmod.BUILD_COUNT.values())
+    """One designer for every length (its solver builds counted by ``solver_builds``) against a new
+    designer per length."""
+    problem = SeekProblem(plant, ctrl, IMAX, robust=robust)
+    d = SeekDesigner(problem)
     reuse, rebuild = [], []
     for K in TRACKS:
         r, w, c = timed(lambda: d.design(K))
         reuse.append((K, w, c, r.solve_time_s, r.settle_samples))
-    builds_reuse = sum(qpmod.BUILD_COUNT.values()) - b0
-    b0 = sum(qpmod.BUILD_COUNT.values())
+    builds_reuse = sum(d.solver_builds.values())
+    builds_rebuild = 0
     for K in TRACKS:
-        r, w, c = timed(lambda: SeekDesigner(plant, ctrl, IMAX, robust=robust).design(K))
+        fresh = SeekDesigner(problem)
+        r, w, c = timed(lambda: fresh.design(K))
+        builds_rebuild += sum(fresh.solver_builds.values())
         rebuild.append((K, w, c, r.solve_time_s, r.settle_samples))
-    builds_rebuild = sum(qpmod.BUILD_COUNT.values()) - b0
     return reuse, rebuild, builds_reuse, builds_rebuild
 
 
 def solver_table(plant, ctrl, K, Ns, nclass, beta, epigraph, robust=None):
     """Every solver on the designer's own condensed QP, built once, then a bisection-like sequence of
     solves with changing data (settle sample ``N`` in ``Ns``): first (cold) solve and the rest."""
-    d = SeekDesigner(plant, ctrl, IMAX, robust=robust)
+    d = SeekDesigner(SeekProblem(plant, ctrl, IMAX, robust=robust))
     s = d._structure(nclass, epigraph)
     seq = [s.data(K, N, None if epigraph else beta, d.gamma, d.hf_tol, None) for N in Ns]
     rows, ref = [], None

@@ -1,16 +1,27 @@
 """Tests for identification.estimate.gains: the mode regressors (plant.py's discretisation), the paper's
-eqs. (9)-(11), the variable-projection problem and its noise model / covariance helpers."""
+eqs. (9)-(11), the variable-projection problem and its noise model / covariance helpers.
+
+Data are made by the independent open-loop simulation of ``tests/drives`` (continuous plant, RK4 on a
+fine grid, exact hold and delay), so an error in the package's discretisation cannot cancel; the
+regressors are also compared with the package's own DiscretePlant (one discretisation, issue 9)."""
 import numpy as np
 import pytest
 
-from identification.estimate.gains import (VarPro, ar_whitener, detect_period, fir_filter, modal_gains, mode_filters,
-                                  mode_regressors, mode_response, periodic_columns, sandwich_cov)
+from identification.estimate.gains import modal_gains, mode_filters, mode_regressors, mode_response
+from identification.estimate.linalg import sandwich_cov
+from identification.estimate.varpro import VarPro, ar_whitener, detect_period, fir_filter, periodic_columns
 from identification.model.plant import ModalPlant, Mode
+from tests.drives import TruthPlant, open_loop
 
 FS = 26400.0
 DT = 1.0 / FS
 K0 = 3.937e9
 MODES = [Mode(420.0, 0.06, 0.0015), Mode(1738.0, 0.03, 0.02), Mode(4100.0, 0.03, -1.0)]
+
+
+def truth(modes=(), bias_a=0.0, delay_s=0.0):
+    """The independent drive's plant (tests/drives) with these numbers."""
+    return TruthPlant(k0=K0, modes=tuple((m.freq_hz, m.zeta, m.gain) for m in modes), bias_a=bias_a, delay_s=delay_s)
 
 
 def current(n=3000, seed=0):
@@ -32,6 +43,8 @@ def test_mode_response_is_plant_py_discretisation(delay_samples):
         rigid = ModalPlant(k0=K0, delay_s=delay_samples * DT).simulate_open_loop(u, DT)
         y = K0 * m.gain * mode_response(u, m.freq_hz, m.zeta, DT, delay_samples * DT)
         np.testing.assert_allclose(y, full - rigid, rtol=0, atol=1e-9 * np.abs(full - rigid).max())
+        ind = open_loop(truth([m], delay_s=delay_samples * DT), u, FS, modes_only=True)   # independent
+        np.testing.assert_allclose(y, ind, rtol=0, atol=1e-9 * np.abs(ind).max())
 
 
 def test_mode_filter_dc_gain_and_batch():
@@ -49,8 +62,7 @@ def test_mode_filter_dc_gain_and_batch():
 def test_eq9_11_gains_exact_given_true_poles():
     """eqs. (9)-(11) on noise-free modal responses: the LS gains over the settle windows are exact."""
     u = current(4000, seed=1)
-    plant = ModalPlant(k0=K0, modes=MODES, delay_s=1e-5)
-    y = plant.simulate_open_loop(u, DT) - ModalPlant(k0=K0, delay_s=1e-5).simulate_open_loop(u, DT)
+    y = open_loop(truth(MODES, delay_s=1e-5), u, FS, modes_only=True)
     Y = mode_regressors(u, [m.freq_hz for m in MODES], [m.zeta for m in MODES], DT, 1e-5)
     windows = [(a + 80, a + 380) for a in range(100, 3600, 400)]    # "after settling" of each burst
     fit = modal_gains(y, Y, windows)
@@ -61,11 +73,11 @@ def test_eq9_11_gains_exact_given_true_poles():
 
 def _synthetic_problem(noise=0.0, seed=2, ar=None):
     u = current(6000, seed=seed)
-    truth = ModalPlant(k0=K0, modes=MODES, bias_a=0.003, delay_s=0.3 * DT)
-    y = truth.simulate_open_loop(u, DT, position0=500.0)
+    plant = ModalPlant(k0=K0, modes=MODES, bias_a=0.003, delay_s=0.3 * DT)
+    y = open_loop(truth(MODES, 0.003, 0.3 * DT), u, FS, position0=500.0)
     y = y + noise * np.random.default_rng(seed + 1).normal(size=len(y))
     segs = [(a, a + 400) for a in range(100, 5600, 400)]
-    return u, y, segs, truth
+    return u, y, segs, plant
 
 
 def test_varpro_exact_at_truth_and_converges():
@@ -147,5 +159,7 @@ def test_mode_regressors_multirate_hold_is_fine_rate_plant(delay_samples):
                 - ModalPlant(k0=K0, delay_s=delay_samples * DT).simulate_open_loop(u.reshape(-1), DT / L))[::L]
         y = K0 * m.gain * mode_regressors(u, [m.freq_hz], [m.zeta], DT, delay_samples * DT)[:, 0]
         np.testing.assert_allclose(y, fine, rtol=0, atol=1e-9 * np.abs(fine).max())
+        ind = open_loop(truth([m], delay_s=delay_samples * DT), u, FS, modes_only=True)   # exact (n, L) hold
+        np.testing.assert_allclose(y, ind, rtol=0, atol=1e-9 * np.abs(ind).max())
         mean = K0 * m.gain * mode_response(u.mean(axis=1), m.freq_hz, m.zeta, DT, delay_samples * DT)
         assert np.abs(mean - fine).max() > 1e-3 * np.abs(fine).max()

@@ -1,5 +1,9 @@
 """End-to-end tests of identification.estimate.identify on synthetic seek logs, figures and the CLI.
 
+The logs come from the independent drive of ``tests/drives`` (continuous plant integrated on a fine
+grid, its own controller stepping), never from ``seekopt.synth``: an error in the package's
+discretisation cannot cancel between the data and the estimator.
+
 Which truth modes must be recovered
 -----------------------------------
 A truth mode is *required* when it lies between 200 Hz and 0.45 fs and its settle-window response
@@ -26,12 +30,12 @@ import numpy as np
 import pytest
 
 from identification.estimate.identify import identify, predict_segments
-from identification.logs.seeklog import LogError, SeekLog, segment_seeks, write_log
-from identification.model.plant import ModalPlant, Mode
+from identification.logs import LogError, SeekLog, segment_seeks, write_log
+from identification.model.plant import ModalPlant
 from identification.estimate.rigid import SegmentProjector
 from identification.estimate.gains import mode_response
-from seekopt.drive.presets import nss_controller_single_rate
-from seekopt.evaluate.synth import SynthConfig, synthesize
+from tests.drives import (Schedule, drive_50k, make_log, modal_plant, nss_drive, nss_single_rate_controller,
+                          other_nss_truth)
 
 NFFT = 256
 
@@ -87,19 +91,17 @@ def table(truth, required, ids):
     return "\n".join(lines)
 
 
-def alt_truth():
-    """A different drive: flex mode at 300 Hz, coil at 2.2 kHz, other damping and gains, other bias."""
-    from seekopt.drive.presets import nss_plant
-    p = nss_plant("v2")
-    modes = sorted([Mode(300.0, 0.04, 0.003), Mode(2200.0, 0.02, 0.015)] + p.modes, key=lambda m: m.freq_hz)
-    return p.copy(modes=modes, bias_a=-0.006)
+def drive_log(drive, schedule, noise_seed=0):
+    """``(log, truth)`` from an independent drive (tests/drives: no dynamics code shared with the package)."""
+    return make_log(drive, schedule, noise_seed=noise_seed), modal_plant(drive)
 
 
 # ------------------------------------------------------------------------------------ fixtures
 @pytest.fixture(scope="session")
 def default_log():
-    """Default truth, benchmark noise (sensor, force, flutter, RRO), 120 seeks."""
-    return synthesize(SynthConfig(n_seeks=120, seed=0))
+    """NSS-like truth (benchmark plant + flex and coil modes + bias), benchmark noise (sensor, force,
+    flutter, RRO), 120 seeks, from the independent drive."""
+    return drive_log(nss_drive(seed=0), Schedule(n_seeks=120, seed=0))
 
 
 @pytest.fixture(scope="session")
@@ -110,16 +112,17 @@ def default_ids(default_log):
 
 @pytest.fixture(scope="session")
 def clean_log():
-    """Default truth without any noise or disturbance (noise=False), 40 seeks."""
-    return synthesize(SynthConfig(n_seeks=40, seed=1, noise=False))
+    """Default truth without any noise or disturbance, 40 seeks."""
+    return drive_log(nss_drive(noise=False), Schedule(n_seeks=40, seed=1), noise_seed=None)
 
 
 @pytest.fixture(scope="session")
 def alt_logs():
-    """Another truth, seed and current limit: on the default (multirate) drive and on a single-rate drive."""
-    truth = alt_truth()
-    multi = synthesize(SynthConfig(n_seeks=100, seed=7, imax_a=0.5), plant=truth)
-    single = synthesize(SynthConfig(n_seeks=100, seed=11, imax_a=0.4), plant=truth, controller=nss_controller_single_rate())
+    """Another truth (flex mode at 300 Hz, coil at 2.2 kHz, other damping, gains and bias), seed and
+    current limit: on the default (multirate) drive and on a single-rate drive."""
+    truth = other_nss_truth()
+    multi = drive_log(nss_drive(truth, seed=7), Schedule(n_seeks=100, seed=7, imax_a=0.5))
+    single = drive_log(nss_drive(truth, nss_single_rate_controller(), seed=11), Schedule(n_seeks=100, seed=11, imax_a=0.4))
     return {"multirate": (multi, identify(multi[0])), "single-rate": (single, identify(single[0]))}
 
 
@@ -150,7 +153,8 @@ def test_default_truth_robust_zeta(default_log, default_ids):
 def test_default_truth_mean_current_only(default_log, default_ids):
     """The same log without its sub-step current columns (a multirate drive that logs only the mean
     current per sample): the intersample current is then unlogged feedback.  Frequencies and k0 stay
-    within the targets; the damping errors are printed (measured: the 7 kHz mode's is about -30 %)."""
+    within the targets; the damping errors are printed (measured on the independent drive's log: the 7 kHz
+    mode's is -36 %, the others within 7 %)."""
     log, truth = default_log
     mean_only = log.slice()
     mean_only.extra = {k: v for k, v in log.extra.items() if not k.startswith("current_sub")}
@@ -205,6 +209,98 @@ def test_other_truth(alt_logs, drive):
     assert abs(res.plant.k0 / truth.k0 - 1) < 0.02
 
 
+# ------------------------------------------------------------------------------------ a drive unlike the bundled one
+#: 50.4 kHz drive of tests/drives: k0 6e9, modes 260 Hz / 2.6 kHz (seek-induced), 5.3 / 7.8 / 10.6 / 14.8 /
+#: 19.5 kHz, PID with lead + notches at 5.3 / 10.6 / 14.8 kHz run at 100.8 kHz, 6 us plant delay + 8 us
+#: computation delay, its own noise (0.01 track sensor, 0.1 mA force, flutter 640 Hz .. 4.2 kHz, run-out)
+SCHEDULE_50K = dict(imax_a=0.25, stroke_track=(0.0, 100000.0))
+
+
+def test_50k_drive_noise_free_is_identified_exactly():
+    """No noise at all: the log is the continuous plant integrated to ~1e-10 (RK4 on a fine grid, exact
+    delay and 2x sub-step hold), so every mode, k0, bias and the total delay (plant + computation) must be
+    recovered to the estimator's convergence, not to a noise level.  Measured (20 seeks): mode frequencies
+    within 5e-7, damping within 8e-6, gains within 4e-6 (relative), k0 2e-10, delay 1e-8, bias 2e-9.  A
+    discretisation error in the estimator's regressors (half a sample of delay, a wrong sub-step hold) shows
+    orders of magnitude above these tolerances."""
+    drive = drive_50k(noise=False)
+    log, truth = drive_log(drive, Schedule(n_seeks=20, seed=3, **SCHEDULE_50K), noise_seed=None)
+    res = identify(log)
+    p = res.plant
+    assert len(p.modes) == len(truth.modes)
+    for m in truth.modes:
+        df, dz, dg = errors(p, m)
+        assert abs(df) < 1e-5 and abs(dz) < 1e-4 and abs(dg) < 1e-4, (m, df, dz, dg)
+    assert abs(p.k0 / truth.k0 - 1) < 1e-8
+    assert abs(p.delay_s / truth.delay_s - 1) < 1e-6
+    assert abs(p.bias_a / truth.bias_a - 1) < 1e-6
+
+
+@pytest.fixture(scope="session")
+def log_50k():
+    drive = drive_50k(seed=3)
+    log, truth = drive_log(drive, Schedule(n_seeks=60, seed=3, **SCHEDULE_50K))
+    return log, truth, identify(log)
+
+
+@pytest.mark.slow
+def test_50k_drive_with_noise(log_50k):
+    """60 seeks with the drive's noise (8-30 s with the identification, depending on load): the modes required by the noise criterion of this module
+    (settle-window SNR >= 3 against the log's own noise floor) within the same targets as the bundled
+    drive (frequency 1 %, damping and gain 25 %, k0 2 %, delay 10 %, bias 2 %), and every error within
+    5 reported standard deviations (the reported std is the noise-level yardstick; issue 11 found them
+    optimistic by up to 2.2x).  Measured: frequencies within 0.04 %, damping within 3.8 %, gains within
+    3.9 %, k0 5e-5, |error / std| at most 1.7; the 14.8 kHz mode, in a notch of the controller (SNR < 3),
+    is found at 14792 Hz with damping -20 % and gain -19 %; the 19.5 kHz mode is not found."""
+    log, truth, res = log_50k
+    req = required_modes(log, truth)
+    print("\n50.4 kHz drive\n" + table(truth, req, {"robust": res}))
+    assert {round(m.freq_hz) for m, _ in req} >= {260, 2600, 5300}
+    for m, snr in req:
+        df, dz, dg = errors(res.plant, m)
+        assert abs(df) < 0.01 and abs(dz) < 0.25 and abs(dg) < 0.25, (m.freq_hz, df, dz, dg)
+        e = match(res.plant, m)
+        z = [(e.freq_hz - m.freq_hz) / e.std["freq_hz"], (e.zeta - m.zeta) / e.std["zeta"], (e.gain - m.gain) / e.std["gain"]]
+        print(f"{m.freq_hz:7.0f} Hz: error / reported std (freq, zeta, gain) = {z[0]:+.2f} {z[1]:+.2f} {z[2]:+.2f}")
+        assert max(abs(v) for v in z) < 5.0, (m.freq_hz, z)
+    p = res.plant
+    assert abs(p.k0 / truth.k0 - 1) < 0.02 and abs(p.k0 - truth.k0) < 5 * p.std["k0"]
+    assert p.delay_s == pytest.approx(truth.delay_s, rel=0.1)
+    assert p.bias_a == pytest.approx(truth.bias_a, rel=0.02)
+
+
+@pytest.mark.slow
+def test_50k_drive_mean_current_only(log_50k):
+    """The same log without its sub-step current columns (the multirate drive logs only the mean current).
+    Targets as for the bundled drive's mean-current test plus damping and gain 25 %.  Measured: frequencies
+    within 0.08 %, damping within 4.7 %, gains within 5.1 %, k0 5e-5."""
+    log, truth, _ = log_50k
+    mean_only = log.slice()
+    mean_only.extra = {k: v for k, v in log.extra.items() if not k.startswith("current_sub")}
+    res = identify(mean_only)
+    req = required_modes(log, truth)
+    print("\n50.4 kHz drive, mean current only\n" + table(truth, req, {"robust (mean current)": res}))
+    for m, snr in req:
+        df, dz, dg = errors(res.plant, m)
+        assert abs(df) < 0.01 and abs(dz) < 0.25 and abs(dg) < 0.25, (m.freq_hz, df, dz, dg)
+    assert abs(res.plant.k0 / truth.k0 - 1) < 0.02
+
+
+def test_settings_recorded_and_options_map(default_log, default_ids):
+    """identify(log, method, **options) runs the method's settings with the options applied, the
+    same as passing the settings; the result records them."""
+    from identification.estimate.settings import PaperSettings, RobustSettings
+    log, _ = default_log
+    assert default_ids["robust"].settings == RobustSettings() and default_ids["paper"].settings == PaperSettings()
+    a = identify(log, method="paper", prony_order=6)
+    b = identify(log, settings=PaperSettings(prony_order=6))
+    assert a.settings == b.settings == PaperSettings(prony_order=6)
+    assert a.plant.to_dict() == b.plant.to_dict()
+    assert max(int(k.split("=")[1]) for k in a.poles_per_order) == 6
+    with pytest.raises(ValueError, match="unknown option"):
+        identify(log, method="paper", max_modes=3)
+
+
 # ------------------------------------------------------------------------------------ errors, CLI, figures
 def test_unusable_logs_raise_logerror():
     n = 400
@@ -239,6 +335,7 @@ def test_cli_identify(default_log, default_ids, tmp_path, monkeypatch, capsys):
     assert cli.main(["identify", str(path), "--method", "paper", "--figures", str(figs)]) == 0
     assert sorted(p.name for p in figs.glob("*.png")) == ["fig3_modes.png", "fig4_spectra.png", "fig5_tf.png",
                                                           "fig6_settle_pes.png", "fig6_settle_pes_window_init.png"]
+    capsys.readouterr()                 # (the figures' stage log, if they took over 2 s)
     bad = tmp_path / "bad.csv"
     bad.write_text("# sample_rate_hz: 26400\ntime_s,current_a,position_track\n0,0,0\n")
     assert cli.main(["identify", str(bad)]) == 2

@@ -1,4 +1,4 @@
-"""Tests for identification.logs.seeklog: format round trips, every bad-input error, fuzzing, segmentation."""
+"""Tests for identification.logs (seeklog, formats): format round trips, every bad-input error, fuzzing, segmentation."""
 from __future__ import annotations
 
 import io
@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
-from identification.logs import seeklog as logs
-from identification.logs.seeklog import LogError, Seek, SeekLog, read_log, segment_seeks, settle_windows, write_log
+from identification.logs import formats as logs
+from identification.logs import LogError, Seek, SeekLog, read_log, segment_seeks, settle_windows, write_log
 
 FS = 10_000.0
 FUZZ = settings(max_examples=120, deadline=None, database=None,
@@ -447,7 +447,9 @@ def test_substep_current_columns(tmp_path):
     """A multirate drive's sub-step currents (current_sub1_a .. current_subL_a) round-trip and come
     back from input_current() as an (n, L) array; bad ones are a one-line error naming the file."""
     n = 200
-    sub = np.random.default_rng(5).normal(size=(n, 2))
+    d = np.random.default_rng(5).normal(size=n)
+    cur = make_log().current_a                        # current_a must be the sub-steps' mean
+    sub = np.column_stack([cur + d, cur - d])
     log = make_log(extra={"current_sub1_a": sub[:, 0], "current_sub2_a": sub[:, 1]})
     np.testing.assert_array_equal(log.input_current(), sub)
     assert make_log().input_current().shape == (n,)

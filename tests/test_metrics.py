@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from seekopt.evaluate.bench import baseline_profile
+from seekopt.design.baselines import baseline_profile
 from seekopt.drive.controller import Controller
 from seekopt.design.metrics import SeekMetrics, evaluate_profile, settle_index, settle_time, worst_case
 from seekopt.drive.presets import default_truth_plant

@@ -9,13 +9,15 @@ import math
 import numpy as np
 import pytest
 
-from seekopt.design import qp as qpmod
-from seekopt.evaluate.bench import baseline_profile, perturbed_plant
+from seekopt.design import solvers as solvmod
+from seekopt.design.baselines import baseline_profile
+from seekopt.evaluate.bench import perturbed_plant
 from seekopt.drive.controller import Controller
 from seekopt.design.metrics import evaluate_profile, simulate_profile
 from identification.model.plant import Mode
-from seekopt.design.ocp import (DesignError, DesignInfeasible, DesignResult, RobustSpec, SeekDesigner,
-                         design_seek, seek_induced)
+from seekopt.design.designer import DesignError, DesignInfeasible, DesignResult, SeekDesigner, design_seek
+from seekopt.design.problem import SeekProblem, SolverSettings
+from seekopt.design.robust import RobustSpec, seek_induced
 from seekopt.drive.presets import SEEK_MODES, default_truth_plant
 from seekopt.design.profiles import Profile, rigid_endpoint_matrix, t_bang_bang
 
@@ -143,34 +145,34 @@ def test_min_residual_objective_improves_with_time(setup, nominal):
 
 def test_solver_built_once_and_reused(setup):
     truth, ctrl, design = setup
-    d = SeekDesigner(design, ctrl, IMAX)
-    before = sum(qpmod.BUILD_COUNT.values())
-    d.design(40.0)
-    builds, total = d.builds, sum(qpmod.BUILD_COUNT.values())
-    assert builds >= 1 and total - before == builds
-    for K in (40.0, 45.0, 50.0, -40.0):          # same size class: no new structure, no new solver
+    d = SeekDesigner(SeekProblem(design, ctrl, IMAX))
+    for K in (40.0, 45.0, 50.0, -40.0):
         d.design(K)
-    assert d.builds == builds and sum(qpmod.BUILD_COUNT.values()) == total
+    builds, solvers = d.builds, sum(d.solver_builds.values())
+    assert builds >= 1 and solvers >= builds          # a full-size solver per structure, plus working-set buckets
+    for K in (40.0, 45.0, 50.0, -40.0, 42.0):    # same size class: no new structure, no new solver
+        d.design(K)
+    assert d.builds == builds and sum(d.solver_builds.values()) == solvers
 
 
 def test_failed_solve_is_never_returned(setup, monkeypatch):
     truth, ctrl, design = setup
-    d = SeekDesigner(design, ctrl, IMAX)
+    d = SeekDesigner(SeekProblem(design, ctrl, IMAX, solver=SolverSettings(max_samples=32)))
 
     def failing(self, *a, **k):
-        return qpmod.QPSolution(np.full(self.n, np.nan), np.zeros(self.m), np.zeros(self.n), False,
-                                "solver crashed", 0.0, 0.0)
+        return solvmod.QPSolution(np.full(self.n, np.nan), np.zeros(self.m), np.zeros(self.n), False,
+                                  "solver crashed", 0.0, 0.0)
 
-    monkeypatch.setattr(qpmod.ConicQP, "solve", failing)
+    monkeypatch.setattr(solvmod.ConicQP, "solve", failing)
     with pytest.raises(DesignError, match="solver crashed"):
         d.design(10.0)
     with pytest.raises(DesignError, match="solver crashed"):
         d.design(10.0, seek_samples=20)
 
     def lying(self, *a, **k):       # claims success with a useless answer
-        return qpmod.QPSolution(np.zeros(self.n), np.zeros(self.m), np.zeros(self.n), True, "1", 0.0, 0.0)
+        return solvmod.QPSolution(np.zeros(self.n), np.zeros(self.m), np.zeros(self.n), True, "1", 0.0, 0.0)
 
-    monkeypatch.setattr(qpmod.ConicQP, "solve", lying)
+    monkeypatch.setattr(solvmod.ConicQP, "solve", lying)
     with pytest.raises(DesignError, match="violation"):
         d.design(10.0)
     with pytest.raises(DesignError, match="violation"):
@@ -179,8 +181,9 @@ def test_failed_solve_is_never_returned(setup, monkeypatch):
 
 def test_ipopt_path_agrees_with_qp(setup):
     truth, ctrl, design = setup
-    a = SeekDesigner(design, ctrl, IMAX, hf_guard=None).design(10.0, seek_samples=12)
-    b = SeekDesigner(design, ctrl, IMAX, hf_guard=None, solver="ipopt").design(10.0, seek_samples=12)
+    a = SeekDesigner(SeekProblem(design, ctrl, IMAX, hf_guard=None)).design(10.0, seek_samples=12)
+    b = SeekDesigner(SeekProblem(design, ctrl, IMAX, hf_guard=None, solver=SolverSettings("ipopt", fallbacks=()))
+                     ).design(10.0, seek_samples=12)
     assert b.solver == "ipopt"
     assert np.allclose(a.profile.current_a, b.profile.current_a, atol=2e-3 * IMAX)
     assert b.residual_band == pytest.approx(a.residual_band, rel=2e-2, abs=1e-3)
@@ -198,12 +201,210 @@ def test_robust_design_beats_baselines_on_truth(setup):
     """K = 50: designed on the perturbed plant, played on the truth."""
     truth, ctrl, design = setup
     fs = ctrl.sample_rate_hz
-    res = SeekDesigner(design, ctrl, IMAX, robust="freq=3,gain=25,zeta=30,delay=3e-6,n=2").design(50.0)
+    res = SeekDesigner(SeekProblem(design, ctrl, IMAX, robust="freq=3,gain=25,zeta=30,delay=3e-6,n=2")).design(50.0)
     m = evaluate_profile(truth, ctrl, res.profile)
     base = min(evaluate_profile(truth, ctrl, baseline_profile(design, fs, k, 50.0, IMAX)).settle_time_s
                for k in ("sine", "windowed_sine"))
     assert m.settled and m.settle_time_s <= 0.5 * base
     assert m.peak_current_a <= IMAX * 1.02
+
+
+# ------------------------------------------------------------------------- problem as data, solver reuse
+def test_seek_problem_json_round_trip_designs_identically(setup, tmp_path):
+    truth, ctrl, design = setup
+    prob = SeekProblem(design, ctrl, IMAX, 0.1, robust=RobustSpec(n_samples=2, freq_pct=3), slew_a_per_s=2000.0,
+                       band_margin=0.85, solver=SolverSettings(fallbacks=("qpoases", "proxqp"), max_samples=256))
+    prob.to_json(tmp_path / "problem.json")
+    back = SeekProblem.from_json(tmp_path / "problem.json")
+    assert back == prob and back.to_dict() == prob.to_dict()
+    assert back.plant.hash() == design.hash() and back.controller.hash() == ctrl.hash()
+    assert back.robust == prob.robust and back.solver == prob.solver
+    assert SeekProblem.from_json(prob.to_json()) == prob
+    assert back != SeekProblem(design, ctrl, IMAX)
+    a, b = SeekDesigner(prob).design(30.0), SeekDesigner.from_problem(back).design(30.0)
+    assert a.settle_samples == b.settle_samples
+    assert np.array_equal(a.profile.current_a, b.profile.current_a)
+    assert np.array_equal(a.profile.reference_track, b.profile.reference_track)
+
+
+def test_designer_built_once_designs_20_lengths_without_rebuilding(setup):
+    truth, ctrl, design = setup
+    d = SeekDesigner(SeekProblem(design, ctrl, IMAX))
+    lengths = np.round(np.geomspace(1.0, 300.0, 20), 1)
+    first = [d.design(K).settle_samples for K in lengths]
+    builds, maps, solvers = d.builds, d.map_builds, dict(d.solver_builds)
+    assert builds == len(d._qps) <= 6            # one structure per size class used, not one per length
+    assert maps <= 2
+    again = [d.design(K).settle_samples for K in lengths[::-1]][::-1]
+    assert again == first
+    assert [SeekDesigner(SeekProblem(design, ctrl, IMAX)).design(K).settle_samples for K in lengths[::4]] == first[::4]
+    assert (d.builds, d.map_builds, dict(d.solver_builds)) == (builds, maps, solvers)
+
+
+# ------------------------------------------------------------------------- solver statuses
+@pytest.mark.parametrize("solver,raw,success,expected", [
+    ("daqp", 1, True, "optimal"), ("daqp", "2", True, "optimal"), ("daqp", -1, False, "infeasible"),
+    ("daqp", -2, False, "numerical"), ("daqp", "-3", False, "numerical"), ("daqp", -4, False, "iteration_limit"),
+    ("daqp", -5, False, "numerical"), ("daqp", -6, False, "numerical"), ("daqp", 1, False, "optimal"),
+    ("highs", "Optimal", True, "optimal"), ("highs", "Infeasible", False, "infeasible"),
+    ("highs", "Time limit reached", False, "iteration_limit"), ("highs", "Unknown", False, "numerical"),
+    ("qpoases", "Successful return.", True, "optimal"),
+    ("qpoases", "Premature homotopy termination because QP is infeasible.", False, "infeasible"),
+    ("qpoases", "Maximum number of working set recalculations performed.", False, "iteration_limit"),
+    ("proxqp", "PROXQP_SOLVED", True, "optimal"), ("proxqp", "PROXQP_PRIMAL_INFEASIBLE", False, "infeasible"),
+    ("proxqp", "PROXQP_MAX_ITER_REACHED", False, "iteration_limit"),
+    ("osqp", "primal infeasible inaccurate", False, "numerical"), ("osqp", "solved inaccurate", False, "numerical"),
+    ("ipopt", "Infeasible_Problem_Detected", False, "infeasible"),
+    ("ipopt", "Maximum_Iterations_Exceeded", False, "iteration_limit"),
+    ("ipopt", "Restoration_Failed", False, "numerical")])
+def test_solver_status_classification(solver, raw, success, expected):
+    assert solvmod.classify_status(solver, raw, success).value == expected
+
+
+class _Fake:
+    """Scripted solver: returns the given raw statuses in turn (daqp flags)."""
+
+    def __init__(self, name, flags, n=2, m=1):
+        self.name, self.flags, self.n, self.m, self.calls = name, list(flags), n, m, 0
+
+    def solve(self, *data, x0=None):
+        flag = self.flags[min(self.calls, len(self.flags) - 1)]
+        self.calls += 1
+        out = solvmod.classify_status("daqp", flag, flag in (1, 2))
+        return solvmod.QPSolution(np.ones(self.n), np.zeros(self.m), np.zeros(self.n), flag in (1, 2), str(flag),
+                                  0.001, 0.001, out, self.name)
+
+
+@pytest.mark.parametrize("primary,fallback,outcome,n_attempts", [
+    ([1], [1], "optimal", 1),               # no retry on success
+    ([-1], [1], "infeasible", 1),           # a proof ends the chain
+    ([-2], [1], "optimal", 2),              # cycling: the fallback answers
+    ([-4], [-1], "infeasible", 2),          # iteration limit, then proven infeasible
+    ([-2], [-5], "numerical", 2),           # nobody decides: never called infeasible
+])
+def test_solver_chain_retries_only_without_proof(primary, fallback, outcome, n_attempts, monkeypatch):
+    fakes = {"daqp": _Fake("daqp", primary), "qpoases": _Fake("qpoases", fallback)}
+    monkeypatch.setattr(solvmod, "make_qp_solver", lambda n, m, name, opts=None: fakes[name])
+    built = []
+    chain = solvmod.SolverChain(2, 1, ("daqp", "qpoases"), builds=built.append)
+    assert built == ["daqp"]                 # the fallback is built on first need only
+    sol = chain.solve(None, None, None, None, None, None, None)
+    assert sol.outcome.value == outcome and len(sol.attempts) == n_attempts
+    assert sol.infeasible == (outcome == "infeasible") and sol.success == (outcome == "optimal")
+    assert built == ["daqp", "qpoases"][:n_attempts]
+    bad = solvmod.SolverChain(2, 1, ("daqp", "qpoases"))     # an answer failing the re-check is not optimal
+    sol = bad.solve(None, None, None, None, None, None, None, check=lambda x: "constraint violation 1")
+    if primary == [1] and fallback == [1]:
+        assert sol.outcome.value == "numerical" and "violation" in sol.status and len(sol.attempts) == 2
+
+
+def test_cycling_primary_falls_back_and_designs_the_same(setup, monkeypatch):
+    """daqp forced to report cycling (-2) on every solve: the fallback (qpoases) designs, the bisection
+    finds the same length as daqp alone, and no length is called infeasible on a cycling status."""
+    truth, ctrl, design = setup
+    ref = SeekDesigner(SeekProblem(design, ctrl, IMAX)).design(50.0)
+    real = solvmod.ConicQP.solve
+
+    def cycling(self, *a, **k):
+        sol = real(self, *a, **k)
+        if self.plugin == "daqp":
+            return solvmod.QPSolution(sol.x, sol.lam_a, sol.lam_x, False, "-2", sol.solve_time_s, sol.cpu_time_s,
+                                      solvmod.classify_status("daqp", -2, False), "daqp")
+        return sol
+
+    monkeypatch.setattr(solvmod.ConicQP, "solve", cycling)
+    d = SeekDesigner(SeekProblem(design, ctrl, IMAX))
+    res = d.design(50.0)
+    assert res.settle_samples == ref.settle_samples
+    assert res.fallback_solves == res.n_solves and res.unresolved_solves == 0
+    assert d.solver_builds["qpoases"] >= 1 and "highs" not in d.solver_builds     # built on need only
+
+
+def test_iteration_limit_of_real_daqp_is_retried(setup):
+    truth, ctrl, design = setup
+    ref = SeekDesigner(SeekProblem(design, ctrl, IMAX)).design(20.0)
+    tight = SolverSettings(options={"daqp": {"daqp": {"iter_limit": 2}}})
+    res = SeekDesigner(SeekProblem(design, ctrl, IMAX, solver=tight)).design(20.0)
+    assert res.fallback_solves >= 1 and res.unresolved_solves == 0
+    assert abs(res.settle_samples - ref.settle_samples) <= 1
+
+
+def test_working_set_option_designs_as_the_full_qp(setup):
+    """SolverSettings(working_set=True): the same optimum on a working set of the rows."""
+    truth, ctrl, design = setup
+    full = SeekDesigner(SeekProblem(design, ctrl, IMAX, robust="n=2"))
+    ws = SeekDesigner(SeekProblem(design, ctrl, IMAX, robust="n=2", solver=SolverSettings(working_set=True)))
+    for K in (20.0, 150.0):
+        a, b = full.design(K), ws.design(K)
+        assert a.settle_samples == b.settle_samples
+        assert np.allclose(a.profile.current_a, b.profile.current_a, atol=1e-3 * IMAX)
+    a, b = full.design(50.0, seek_samples=24), ws.design(50.0, seek_samples=24)
+    assert b.residual_band == pytest.approx(a.residual_band, rel=1e-3, abs=1e-6)
+    wsq = next(iter(ws._ws.values()))
+    assert wsq.rounds > 0
+
+
+# ------------------------------------------------------------------------- early errors
+def test_impossible_seeks_rejected_before_any_qp(setup):
+    truth, ctrl, design = setup
+    d = SeekDesigner(SeekProblem(design, ctrl, IMAX))
+    with pytest.raises(DesignInfeasible, match="beyond the longest design horizon"):
+        d.design(1e9)
+    with pytest.raises(DesignInfeasible, match="beyond the longest design horizon"):
+        SeekDesigner(SeekProblem(design, ctrl, 1e-7)).design(200.0)
+    with pytest.raises(DesignInfeasible, match="holding current"):
+        SeekDesigner(SeekProblem(design.copy(bias_a=0.01), ctrl, 0.01)).design(1.0)
+    assert d.builds == 0 and d.map_builds == 0
+
+
+def test_unstable_closed_loop_rejected_at_once(setup):
+    from seekopt.design.problem import ProblemError, check_closed_loop
+    from seekopt.design.qp import LoopMaps
+    truth, ctrl, design = setup
+    for f in (1.0, 1.5, 2.0, 2.5, 3.0):          # the check agrees with the simulated closed loop
+        p = truth.copy(k0=truth.k0 * f)
+        try:
+            check_closed_loop(p, ctrl)
+            stable = True
+        except ProblemError:
+            stable = False
+        try:
+            with np.errstate(all="ignore"):
+                LoopMaps(p, ctrl, 4000)
+            simulated = True
+        except ValueError:
+            simulated = False
+        assert stable == simulated, f
+    with pytest.raises(ProblemError, match="unstable"):
+        SeekDesigner(SeekProblem(truth.copy(k0=truth.k0 * 3), ctrl, IMAX))
+
+
+def test_cli_design_early_errors_exit_2(tmp_path, capsys):
+    from seekopt.app.cli import main
+    from seekopt.drive.presets import default_truth_plant
+    p = default_truth_plant()
+    good, bad = tmp_path / "plant.json", tmp_path / "unstable.json"
+    p.to_json(good)
+    p.copy(k0=p.k0 * 3).to_json(bad)
+    out = tmp_path / "p.csv"
+    for args in (["--plant", str(good), "--tracks", "1e9", "--imax", "0.3"],
+                 ["--plant", str(good), "--tracks", "200", "--imax", "1e-7"],
+                 ["--plant", str(bad), "--tracks", "200", "--imax", "0.3"]):
+        assert main(["design", *args, "--robust", "none", "-o", str(out)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and "error" in err
+    assert not out.exists()
+
+
+def test_k500_nominal_designs_on_the_bundled_plant():
+    """K = 500 nominal (issue 12: used to abort with 'QP solver daqp failed')."""
+    from pathlib import Path
+    from identification.model.plant import ModalPlant
+    import seekopt
+    plant = ModalPlant.load(Path(seekopt.__file__).parent / "data" / "sample_log.truth.json")
+    res = SeekDesigner(SeekProblem(plant, Controller.nss(), IMAX)).design(500.0)
+    assert res.metrics.settled and res.unresolved_solves == 0
+    assert res.metrics.peak_current_a <= IMAX * (1 + 1e-9)
 
 
 # ------------------------------------------------------------------------- acceptance (slow)
@@ -230,7 +431,7 @@ def _best_baseline(plant_for_design, truth, ctrl, K):
 @pytest.fixture(scope="module")
 def ident_designer(setup, identified):
     truth, ctrl, design = setup
-    return SeekDesigner(identified, ctrl, IMAX, robust=IDENT_ROBUST)
+    return SeekDesigner(SeekProblem(identified, ctrl, IMAX, robust=IDENT_ROBUST))
 
 
 @pytest.mark.slow
@@ -254,6 +455,26 @@ def test_acceptance_robust_to_seek_mode_shift(setup, identified, shift):
     shifted = truth.copy(modes=[type(m)(m.freq_hz * (1 + shift) if m.freq_hz in seek else m.freq_hz, m.zeta, m.gain)
                                 for m in truth.modes])
     for plant in (identified, design):          # identified plant and the perturbed stand-in
-        res = SeekDesigner(plant, ctrl, IMAX, robust=IDENT_ROBUST).design(200.0)
+        res = SeekDesigner(SeekProblem(plant, ctrl, IMAX, robust=IDENT_ROBUST)).design(200.0)
         m = evaluate_profile(shifted, ctrl, res.profile)
         assert m.settled and m.settle_time_s <= 0.7 * _best_baseline(plant, shifted, ctrl, 200.0)
+
+
+@pytest.fixture(scope="module")
+def bundled_plant():
+    """The plant identified from the bundled sample log (the README's plant.json)."""
+    from pathlib import Path
+    import seekopt
+    from identification.estimate.identify import identify
+    from identification.logs.seeklog import read_log
+    return identify(read_log(Path(seekopt.__file__).parent / "data" / "sample_log.npz")).plant
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("K,robust", [(500.0, None), (10000.0, RobustSpec())])
+def test_issue12_false_aborts_design(bundled_plant, K, robust):
+    """K = 500 nominal and K = 10000 robust (issue 12: aborted with 'QP solver daqp failed')."""
+    res = SeekDesigner(SeekProblem(bundled_plant, Controller.nss(), IMAX, robust=robust)).design(K)
+    assert res.metrics.settled and res.unresolved_solves == 0
+    assert res.metrics.peak_current_a <= IMAX * (1 + 1e-9)
+    assert res.metrics.settle_time_s * Controller.nss().sample_rate_hz <= res.settle_samples + 1

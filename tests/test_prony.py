@@ -1,12 +1,17 @@
-"""Tests for identification.estimate.prony: LS Prony (paper eqs. 4-7), pooled matrix pencil, CRB."""
+"""Tests for identification.estimate.prony and .pencil: LS Prony (paper eqs. 4-7), pooled matrix pencil, CRB.
+
+Signals are a mode's free response written independently in ``tests/drives``
+(:func:`tests.drives.damped_free_response`, from the continuous pole), not the module's own
+``damped_sinusoid`` helper; :func:`test_damped_sinusoid_helper_is_the_free_response` ties the two."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+from identification.estimate.pencil import matrix_pencil, stabilisation_diagram
 from identification.estimate.prony import (PoleEstimate, crb_damped_sinusoid, crb_modes, damped_sinusoid, fit_amplitudes,
-                                  ls_prony, matrix_pencil, modal_to_z, refine_poles, snr_db,
-                                  stabilisation_diagram, z_to_modal)
+                                           ls_prony, modal_to_z, refine_poles, snr_db, z_to_modal)
+from tests.drives import damped_free_response
 
 FS = 26_400.0
 FREQS = np.array([350.0, 1738.0, 4100.0])
@@ -19,7 +24,7 @@ def _windows(rng, freqs=FREQS, zetas=ZETAS, n_windows=4, n=200, sigma=0.0, lengt
     out = []
     for m in lengths:
         amps, phases = rng.uniform(0.5, 2.0, len(freqs)), rng.uniform(0, 2 * np.pi, len(freqs))
-        x = sum(damped_sinusoid(m, FS, f, z, a, p) for f, z, a, p in zip(freqs, zetas, amps, phases))
+        x = sum(damped_free_response(m, FS, f, z, a, p) for f, z, a, p in zip(freqs, zetas, amps, phases))
         out.append(x + sigma * rng.standard_normal(m))
     return out
 
@@ -46,6 +51,13 @@ def test_conversions_round_trip_and_errata_form():
     f, zeta = z_to_modal(np.exp((-zp * w + 1j * w) / FS), FS)
     assert f == pytest.approx(w * np.sqrt(1 + zp ** 2) / (2 * np.pi), rel=1e-12)
     assert zeta == pytest.approx(zp / np.sqrt(1 + zp ** 2), rel=1e-10)
+
+
+def test_damped_sinusoid_helper_is_the_free_response():
+    """prony.damped_sinusoid (A e^{-zeta w t} cos(w_d t + phase), natural w) is the mode's free response."""
+    for f, z, a, p in ((1738.0, 0.02, 1.3, 0.4), (350.0, 0.3, 0.7, -2.0)):
+        np.testing.assert_allclose(damped_sinusoid(300, FS, f, z, a, p), damped_free_response(300, FS, f, z, a, p),
+                                   rtol=1e-12, atol=1e-14)
 
 
 # ------------------------------------------------------------------------------------ noise-free recovery
@@ -87,7 +99,7 @@ def test_matrix_pencil_overfitted_order_rejects_extras_noise_free():
 
 def test_fit_amplitudes_recovers_amplitude_and_phase():
     amps, phases = np.array([1.3, 0.4, 0.9]), np.array([0.3, -2.0, 1.1])
-    x = sum(damped_sinusoid(150, FS, f, z, a, p) for f, z, a, p in zip(FREQS, ZETAS, amps, phases))
+    x = sum(damped_free_response(150, FS, f, z, a, p) for f, z, a, p in zip(FREQS, ZETAS, amps, phases))
     c = fit_amplitudes(x, modal_to_z(FREQS, ZETAS, FS), FS)   # upper poles only: conjugates added
     np.testing.assert_allclose(2 * np.abs(c), amps, rtol=1e-9)
     np.testing.assert_allclose(np.angle(c), phases, atol=1e-9)
@@ -127,9 +139,9 @@ def test_refine_poles_converges_from_perturbed_start():
 def test_rejection_rules():
     rng = np.random.default_rng(7)
     n = 200
-    good = damped_sinusoid(n, FS, 1738.0, 0.02)
+    good = damped_free_response(n, FS, 1738.0, 0.02)
     growing = np.exp(0.004 * np.arange(n)) * np.cos(2 * np.pi * 3000.0 / FS * np.arange(n))
-    heavy = damped_sinusoid(n, FS, 2500.0, 0.7, 3.0)
+    heavy = damped_free_response(n, FS, 2500.0, 0.7, 3.0)
     x = good + growing + heavy + 0.5 + 1e-4 * rng.standard_normal(n)
     poles, diag = matrix_pencil(x, FS, order=7)
     assert [round(p.freq_hz) for p in poles] == [1738]
@@ -159,7 +171,7 @@ def test_order_selection_at_25db(n_windows):
         ws = []
         for _w in range(n_windows):
             ph = rng.uniform(0, 2 * np.pi, 3)
-            ws.append(sum(damped_sinusoid(200, FS, f, z, 1.0, p) for f, z, p in zip(FREQS, ZETAS, ph))
+            ws.append(sum(damped_free_response(200, FS, f, z, 1.0, p) for f, z, p in zip(FREQS, ZETAS, ph))
                       + sigma * rng.standard_normal(200))
         poles, diag = matrix_pencil(ws, FS)
         assert diag.order == 6 and len(poles) == 3
@@ -175,7 +187,7 @@ def test_monte_carlo_20db_matrix_pencil_near_crb_and_prony_worse():
     crb_var = []
     for _ in range(200):
         ph = rng.uniform(0, 2 * np.pi)
-        x = damped_sinusoid(n, FS, f0, z0, 1.0, ph) + sigma * rng.standard_normal(n)
+        x = damped_free_response(n, FS, f0, z0, 1.0, ph) + sigma * rng.standard_normal(n)
         crb_var.append(np.square(crb_damped_sinusoid(n, FS, f0, z0, 1.0, sigma, ph)))
         zp = ls_prony(x, 1, FS)
         zp = zp[np.argmax(zp.imag)]
@@ -199,7 +211,7 @@ def _numerical_fisher_std(n, fs, freqs, zetas, amps, phases, sigma, h=1e-6):
     theta0 = np.ravel(np.column_stack([freqs, zetas, amps, phases]))
 
     def model(theta):
-        return sum(damped_sinusoid(n, fs, *theta[4 * r:4 * r + 4]) for r in range(len(freqs)))
+        return sum(damped_free_response(n, fs, *theta[4 * r:4 * r + 4]) for r in range(len(freqs)))
 
     J = np.empty((n, len(theta0)))
     for i in range(len(theta0)):
@@ -235,6 +247,6 @@ def test_crb_two_modes_matches_numerical_fisher():
 def test_snr_definition_is_phase_averaged_energy():
     n, sigma = 200, 0.1
     phases = np.linspace(0, 2 * np.pi, 64, endpoint=False)
-    energy = np.mean([np.sum(damped_sinusoid(n, FS, 1738.0, 0.02, 1.5, p) ** 2) for p in phases])
+    energy = np.mean([np.sum(damped_free_response(n, FS, 1738.0, 0.02, 1.5, p) ** 2) for p in phases])
     expected = 10 * np.log10(energy / (n * sigma ** 2))
     assert snr_db(1.5, 0.02, 1738.0, n, FS, sigma) == pytest.approx(expected, abs=1e-3)

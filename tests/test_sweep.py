@@ -18,7 +18,7 @@ import pytest
 
 from seekopt.drive.controller import Controller
 from seekopt.drive.presets import default_truth_plant
-from seekopt.evaluate.sweep import (ALL_KINDS, KINDS, TIMING_COLUMNS, TUNE_FACTORS, SweepConfig, SweepError, cell_key, compute_cell,
+from seekopt.evaluate.sweep import (ALL_KINDS, KINDS, TIMING_COLUMNS, TUNE_FACTORS, SweepConfig, SweepError, CellRunner, cell_key, compute_cell,
                            load_cells, parse_tpi, parse_tracks, run_sweep)
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -108,11 +108,26 @@ def test_tuned_baselines_never_slower_than_shortest():
 
 
 def test_designer_built_once_per_tpi():
+    """A runner (what each worker holds) builds one designer per TPI and reuses it across that TPI's
+    cells; there is no module-level cache: a fresh runner, or compute_cell, builds its own."""
     BUILT.clear()
-    cfg = config(designer="test_sweep:CountingDesigner", tpis=[300e3])
-    for k in (1, 10, 100):
-        compute_cell({"config": cfg.to_dict(), "tpi": 300e3, "tracks": k})
-    assert len(BUILT) == 1
+    cfg = config(designer="test_sweep:CountingDesigner", tpis=[300e3, 400e3])
+    runner = CellRunner()
+    for tpi in (300e3, 400e3):
+        for k in (1, 10, 100):
+            runner({"config": cfg.to_dict(), "tpi": tpi, "tracks": k})
+    assert len(BUILT) == 2 and runner.designers_built == 2
+    compute_cell({"config": cfg.to_dict(), "tpi": 300e3, "tracks": 1})
+    compute_cell({"config": cfg.to_dict(), "tpi": 300e3, "tracks": 10})
+    assert len(BUILT) == 4
+
+
+def test_sweep_config_default_designer_is_the_cli_default():
+    from seekopt.app.cli import build_parser
+    args = build_parser().parse_args(["sweep", "--plant", "p.json", "--tpi", "200k", "--tracks", "1",
+                                      "--imax", "0.3", "-o", "o"])
+    cfg = SweepConfig(default_truth_plant(), Controller.nss(), [200e3], [1], 0.3)
+    assert cfg.designer == args.designer == "ocp-robust"
 
 
 # ------------------------------------------------------------------ results, determinism, engines

@@ -1,7 +1,7 @@
 """The synthetic drive."""
 import numpy as np
 
-from identification.logs.seeklog import read_log, segment_seeks, write_log
+from identification.logs import read_log, segment_seeks, write_log
 from seekopt.app.cli import main
 from seekopt.evaluate.synth import SynthConfig, synthesize
 

@@ -16,7 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from identification.estimate.gains import mode_regressors
-from identification.estimate.identify import Identification, predict_segments
+from identification.estimate.heldout import predict_segments
+from identification.estimate.result import Identification
 from identification.logs.seeklog import SeekLog, segment_seeks
 
 __all__ = ["plot_identification", "fig3_modes", "fig4_spectra", "fig5_transfer_functions", "fig6_settle_pes",
@@ -131,7 +132,7 @@ def fig5_transfer_functions(ident: Identification, truth=None):
 def fig6_settle_pes(log: SeekLog, ident: Identification, seeks=None, n_seeks: int = 4, window_init: bool = False):
     """Fig. 6: measured and estimated PES after settling for ``n_seeks`` seeks (default: the
     longest settle windows of the held-out seeks if any, else of all seeks); the estimate is
-    :func:`identification.estimate.identify.predict_segments` (model response to the measured current,
+    :func:`identification.estimate.heldout.predict_segments` (model response to the measured current,
     initial position and velocity fitted over the seek, or over the settle window if
     ``window_init``); the rigid-body-only estimate is dotted."""
     plt = _plt()

@@ -32,6 +32,11 @@ advance (plus the plant's own input delay) is an unmodelled lag for eq. (8): on 
 benchmark's 10 us delay it biased ``k0`` by -0.9 % on short sine seeks (test) and -0.3 % on the
 synthetic drive's logs (``docs/results_identification.md``).
 
+The bias force from the whole log (:func:`whole_log_bias`): between two instants where the head is at
+rest the rigid body's velocity change is ``k0`` times the integral of the total force, so the bias is
+minus the mean current over the log plus a velocity correction -- the continuity of the velocity
+from seek to seek, which a per-seek fit with free initial position and velocity throws away.
+
 Two further misprints in Section 3.1 are handled as follows: the cost ``J`` uses
 ``sum_j sum_k 1 = (i+1)(i+2)/2`` as the regressor of ``b1`` while the printed normal equations use
 ``sum_{j=0}^{i} j = i(i+1)/2``; and the printed solution vector is the LS coefficient of ``+b1``
@@ -46,10 +51,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import minimize_scalar
 
+from identification.estimate.linalg import SegmentProjector, lstsq, white_cov
 from identification.model.plant import ModalPlant
 
-__all__ = ["double_sum", "Eq8Fit", "eq8_fit", "k0_from_b0", "SegmentProjector", "zoh_rigid_response",
-           "bias_response", "RigidFit", "rigid_fit"]
+__all__ = ["double_sum", "Eq8Fit", "eq8_fit", "k0_from_b0", "zoh_rigid_response", "bias_response", "RigidFit",
+           "rigid_fit", "BiasEstimate", "momentum_bias", "whole_log_bias", "SegmentProjector"]
 
 
 # ------------------------------------------------------------------------------------ eq. (8)
@@ -73,7 +79,8 @@ class Eq8Fit:
 
     ``b0`` [track/A] and ``b1`` [track] as in eq. (8); ``k0`` [track/(A s^2)] (``b0 / Ts^2``);
     ``bias_a = -b1 / b0`` [A]; ``U`` the pooled 2x2 normal matrix and ``rhs`` its right-hand side;
-    ``residual_rms`` [track]; ``n_seeks`` and ``n_samples`` used.
+    ``residual_rms`` [track]; ``n_seeks`` and ``n_samples`` used; ``cov`` the covariance of
+    ``(b0, b1)`` for white residuals (:func:`identification.estimate.linalg.white_cov`).
     """
     b0: float
     b1: float
@@ -84,6 +91,7 @@ class Eq8Fit:
     residual_rms: float
     n_seeks: int
     n_samples: int
+    cov: np.ndarray | None = None
 
 
 def eq8_fit(current_a, position_track, segments, dt: float, bias_regressor: str = "cost") -> Eq8Fit:
@@ -133,100 +141,53 @@ def eq8_fit(current_a, position_track, segments, dt: float, bias_regressor: str 
         used += 1
     if used == 0:
         raise ValueError("eq8_fit: no segment with at least 3 samples")
-    s = np.sqrt(np.diag(U))
-    b = np.linalg.solve(U / np.outer(s, s), rhs / s) / s
+    b = lstsq(U, rhs)                       # the pooled normal equations of eq. (8)
     # the residual from the residuals themselves: yy - 2 b.rhs + b.U.b cancels catastrophically
-    rss = sum(float(np.sum((y - X @ b) ** 2)) for X, y in blocks)
+    r = np.concatenate([y - X @ b for X, y in blocks])
+    cov = white_cov(np.vstack([X for X, _ in blocks]), r)
     b0, b1 = float(b[0]), float(b[1])
-    return Eq8Fit(b0, b1, k0_from_b0(b0, dt), -b1 / b0, U, rhs, float(np.sqrt(rss / n)), used, n)
+    return Eq8Fit(b0, b1, k0_from_b0(b0, dt), -b1 / b0, U, rhs, float(np.sqrt(float(r @ r) / n)), used, n, cov)
 
 
 # ------------------------------------------------------------------------------------ ZOH rigid body
-class SegmentProjector:
-    """Orthogonal projection that removes a per-segment polynomial ``p0 + v0 t (+ ...)``.
-
-    The rows are the concatenation of the index ranges ``segments`` (half-open, into the log);
-    ``t`` is the local sample index from each segment's *start* (``offsets`` shifts it when only
-    part of a segment is used, so that ``t`` still counts from the seek start).  Projecting the
-    data and every regressor removes the per-segment initial position and velocity exactly
-    (variable projection of linear nuisance parameters).
-
-    Parameters
-    ----------
-    segments : sequence of (int, int)
-    offsets : sequence of int, optional
-        Local time of each range's first row (default 0).
-    degree : int
-        Polynomial degree of the nuisance (1: initial position and velocity).
-    """
-
-    def __init__(self, segments, offsets=None, degree: int = 1):
-        segs = [(int(a), int(b)) for a, b in segments if b > a]
-        if not segs:
-            raise ValueError("SegmentProjector: no non-empty segment")
-        offsets = [0] * len(segs) if offsets is None else list(offsets)
-        self.segments = segs
-        self.lengths = np.array([b - a for a, b in segs])
-        self.rows = np.concatenate([np.arange(a, b) for a, b in segs])
-        self.seg_id = np.repeat(np.arange(len(segs)), self.lengths)
-        self.bounds = np.r_[0, np.cumsum(self.lengths)][:len(segs) + 1]
-        t = np.concatenate([np.arange(n, dtype=float) + o for n, o in zip(self.lengths, offsets)])
-        # orthonormal per-segment polynomial basis: Gram-Schmidt on 1, t, t^2 .. within each segment
-        self.degree = int(degree)
-        scale = np.repeat(np.maximum(self.lengths, 1).astype(float), self.lengths)
-        tt = t / scale
-        Q = []
-        for d in range(self.degree + 1):
-            v = tt ** d
-            for _ in range(2):                       # twice is enough (re-orthogonalisation)
-                for q in Q:
-                    v = v - q * np.add.reduceat(q * v, self.bounds[:-1])[self.seg_id]
-            nrm = np.sqrt(np.add.reduceat(v * v, self.bounds[:-1]))
-            ok = nrm > 1e-9 * np.sqrt(self.lengths)  # segments too short for this degree get 0
-            v = v * np.where(ok, 1.0 / np.where(ok, nrm, 1.0), 0.0)[self.seg_id]
-            Q.append(v)
-        self.Q = np.column_stack(Q)
-        self.t = t
-        # the projection as sparse products: coefficients S x (one row per segment and basis
-        # function), fit S^T (S x)
-        from scipy import sparse
-        w, nseg, n = self.Q.shape[1], len(segs), len(self.rows)
-        self._S = sparse.csr_matrix((self.Q.T.ravel(), (np.repeat(np.arange(w), n) * nseg + np.tile(self.seg_id, w),
-                                                        np.tile(np.arange(n), w))), shape=(w * nseg, n))
-        self._ST = self._S.T.tocsr()
-
-    @property
-    def n_rows(self) -> int:
-        return len(self.rows)
-
-    @property
-    def n_nuisance(self) -> int:
-        return int(sum(min(self.degree + 1, n) for n in self.lengths))
-
-    def take(self, x) -> np.ndarray:
-        """Rows of a log-length array (or the rows of each column of a 2-D array)."""
-        return np.asarray(x)[self.rows]
-
-    def fitted(self, x) -> np.ndarray:
-        """The per-segment polynomial LS fit of rows ``x`` (1-D, or 2-D with one column per signal)."""
-        x = np.asarray(x, dtype=float)
-        return self._ST @ (self._S @ x)
-
-    def project(self, x) -> np.ndarray:
-        """``x`` minus its per-segment polynomial fit (``x`` already restricted to the rows)."""
-        return np.asarray(x, dtype=float) - self.fitted(x)
-
-
-def _rigid_gammas(dt: float, delay_s: float):
+def _rigid_block(dt: float, delay_s: float = 0.0):
+    """``m, h, Gamma_new, Gamma_old, Gamma_f`` of the unit rigid body in the one discretisation
+    (:class:`identification.model.discrete.DiscretePlant` of ``ModalPlant(k0=1, delay_s=delay_s)``):
+    whole-sample delay ``m``, ``Phi = [[1, h], [0, 1]]`` (checked) and the input / force columns."""
     dp = ModalPlant(k0=1.0, delay_s=float(delay_s)).discretize(dt)
-    return dp.m, dp.G_new[:2], dp.G_old[:2]
+    Phi = dp.Phi[:2, :2]
+    if not (Phi[0, 0] == Phi[1, 1] == 1.0 and Phi[1, 0] == 0.0):
+        raise AssertionError("the rigid block of DiscretePlant is not a double integrator")
+    return dp.m, float(Phi[0, 1]), dp.G_new[:2], dp.G_old[:2], dp.G_f[:2]
+
+
+def _restarted_rigid(dp_in, dv_in, h: float, starts) -> np.ndarray:
+    """Position of the rigid block ``p[k+1] = p[k] + h v[k] + dp_in[k]``, ``v[k+1] = v[k] + dv_in[k]``
+    with ``p = v = 0`` at every index in ``starts`` and zero before the first: two cumulative
+    sums, exact for ``Phi = [[1, h], [0, 1]]``."""
+    n = len(dv_in)
+    starts = np.asarray(sorted(set(int(s) for s in starts)), dtype=int)
+    seg = np.zeros(n, dtype=int)
+    seg[starts] = 1
+    seg = np.cumsum(seg)        # segment number of each sample (0: before the first start)
+
+    def restart_cumsum(x):      # y[k] = sum_{start <= j < k} x[j] within each segment
+        c = np.r_[0.0, np.cumsum(x)][:n]
+        base = np.r_[0.0, c[starts]]
+        return c - base[seg]
+
+    p = restart_cumsum(h * restart_cumsum(dv_in) + dp_in)
+    p[seg == 0] = 0.0
+    return p
 
 
 def zoh_rigid_response(current_a, dt: float, delay_s: float, starts) -> np.ndarray:
     """Unit-``k0`` rigid-body position from the measured current, restarted at each start.
 
-    The ZOH double integrator with fractional input delay of :class:`identification.model.plant.DiscretePlant`
-    (``ModalPlant(k0=1, delay_s=delay_s)``)::
+    The rigid block of :class:`identification.model.discrete.DiscretePlant` of
+    ``ModalPlant(k0=1, delay_s=delay_s)`` (ZOH, fractional input delay: its ``Phi``, ``Gamma_new``,
+    ``Gamma_old``), stepped by two cumulative sums -- exact, because that block is a double
+    integrator, ``Phi = [[1, dt], [0, 1]]`` (checked)::
 
         v[k+1] = v[k] + Gn_v u[k-m] + Go_v u[k-m-1]
         p[k+1] = p[k] + dt v[k] + Gn_p u[k-m] + Go_p u[k-m-1]
@@ -234,11 +195,14 @@ def zoh_rigid_response(current_a, dt: float, delay_s: float, starts) -> np.ndarr
     with ``p = v = 0`` at every index in ``starts`` (the delay line holds the measured current
     before it; before sample 0 the current is taken as ``current_a[0]``).  Between starts the
     response runs on; samples before the first start are zero.  Per-segment initial position and
-    velocity are left to :class:`SegmentProjector`.
+    velocity are left to :class:`identification.estimate.linalg.SegmentProjector`.
 
     ``current_a`` of shape ``(n, L)`` is a multirate current (``L`` held sub-steps per sample,
     :meth:`identification.logs.seeklog.SeekLog.input_current`): the response is computed at ``dt / L`` and
     sampled at the log's instants.
+
+    ``tests/test_rigid.py`` checks it against ``DiscretePlant`` stepping, fractional delays and the
+    multirate sub-step hold included.
 
     Returns
     -------
@@ -250,39 +214,26 @@ def zoh_rigid_response(current_a, dt: float, delay_s: float, starts) -> np.ndarr
         L = u.shape[1]
         fine = zoh_rigid_response(u.reshape(-1), dt / L, delay_s, [L * int(s) for s in starts])
         return fine[::L]
+    dp_in, dv_in, h = _increments(u, dt, delay_s)
+    return _restarted_rigid(dp_in, dv_in, h, starts)
+
+
+def _increments(u, dt: float, delay_s: float):
+    """Per-sample position and velocity increments of the unit rigid block driven by the current
+    ``u`` (1-D, held over each sample; before sample 0 it is ``u[0]``), and ``h``."""
     n = len(u)
-    m, gn, go = _rigid_gammas(dt, delay_s)
+    m, h, gn, go, _ = _rigid_block(dt, delay_s)
     pad = np.r_[np.full(m + 1, u[0]), u]
     un = pad[1:n + 1]          # u[k - m]
     uo = pad[:n]               # u[k - m - 1]
-    dv = gn[1] * un + go[1] * uo
-    dp_ = gn[0] * un + go[0] * uo
-    starts = np.asarray(sorted(set(int(s) for s in starts)), dtype=int)
-    seg = np.zeros(n, dtype=int)
-    seg[starts] = 1
-    seg = np.cumsum(seg)        # segment number of each sample (0: before the first start)
-
-    def restart_cumsum(x):      # y[k] = sum_{start <= j < k} x[j] within each segment
-        c = np.r_[0.0, np.cumsum(x)][:n]
-        base = np.r_[0.0, c[starts]]
-        return c - base[seg]
-
-    v = restart_cumsum(dv)
-    p = restart_cumsum(dt * v + dp_)
-    p[seg == 0] = 0.0
-    return p
+    return gn[0] * un + go[0] * uo, gn[1] * un + go[1] * uo, h
 
 
 def bias_response(n: int, dt: float, starts) -> np.ndarray:
-    """Unit-``k0`` position from a unit constant force (undelayed): ``(t - t_start)^2 / 2`` [s^2]."""
-    starts = np.asarray(sorted(set(int(s) for s in starts)), dtype=int)
-    seg = np.zeros(n, dtype=int)
-    seg[starts] = 1
-    seg = np.cumsum(seg)
-    k = np.arange(n) - np.r_[0, starts][seg]
-    out = 0.5 * (k * dt) ** 2
-    out[seg == 0] = 0.0
-    return out
+    """Unit-``k0`` position from a unit constant force (the undelayed force channel ``Gamma_f`` of
+    the same rigid block), restarted at each start: ``(t - t_start)^2 / 2`` [s^2]."""
+    _, h, _, _, gf = _rigid_block(dt)
+    return _restarted_rigid(np.full(n, gf[0]), np.full(n, gf[1]), h, starts)
 
 
 @dataclass
@@ -304,9 +255,7 @@ def _rigid_ls(u, y, dt, delay, proj, starts):
     B = proj.take(bias_response(len(u), dt, starts))
     X = proj.project(np.column_stack([R, B]))
     yp = proj.project(proj.take(y))
-    s = np.linalg.norm(X, axis=0)
-    c, *_ = np.linalg.lstsq(X / s, yp, rcond=None)
-    c = c / s
+    c = lstsq(X, yp)
     r = yp - X @ c
     return c, r, X
 
@@ -342,10 +291,94 @@ def rigid_fit(current_a, position_track, segments, dt: float, delay_range=(0.0, 
     d = minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 1e-6}).x if hi > lo else lo
     c, r, X = _rigid_ls(u, y, dt, d * dt, proj, starts)
     dof = max(proj.n_rows - proj.n_nuisance - 2, 1)
-    s2 = float(r @ r) / dof
-    cov = np.linalg.inv(X.T @ X) * s2
+    cov = white_cov(X, r, dof=dof)
     k0 = float(c[0])
     bias = float(c[1] / c[0])
     sb = np.sqrt(cov[1, 1] / k0 ** 2 + bias ** 2 * cov[0, 0] / k0 ** 2)
     return RigidFit(k0, bias, float(d * dt), float(np.sqrt(np.mean(r ** 2))),
                     {"k0": float(np.sqrt(cov[0, 0])), "bias_a": float(sb)}, grid * dt, costs)
+
+
+@dataclass
+class BiasEstimate:
+    """Result of :func:`whole_log_bias`: ``bias_a`` [A] and its standard deviation ``std_a`` [A]
+    (batch means over the chunks), the number of chunks and the time they span [s]."""
+    bias_a: float
+    std_a: float
+    n_chunks: int
+    span_s: float
+
+
+def momentum_bias(current_a, instants, velocity, k0: float, dt: float, delay_s: float = 0.0) -> BiasEstimate:
+    """The bias force from the whole log: the rigid body's momentum balance between instants where
+    its velocity is known.
+
+    Between consecutive instants ``k_j < k_{j+1}`` the velocity of the rigid block changes by
+    ``k0`` times its response to the current (the same ZOH and delay as :func:`zoh_rigid_response`,
+    multirate sub-steps included) plus ``k0 dt`` per sample of bias (the force channel), plus the
+    unlogged force noise, so each chunk gives ``b_j = ((v_{j+1} - v_j) / k0 - dV_j) / (dt N_j)``
+    (``dV_j`` the unit-``k0`` velocity change due to the current, ``N_j`` the samples).  The
+    estimate is their time-weighted mean, in which the velocities telescope: only the first and the
+    last velocity's errors remain, divided by ``k0`` times the whole span, and the force noise
+    averages over the whole log.  Its standard deviation is the batch-means one of the ``b_j`` (it
+    also counts the inner velocities' errors, which telescope away in the estimate itself: slightly
+    conservative).
+
+    Parameters
+    ----------
+    current_a : array_like, shape (n,) or (n, L)
+        The current as the plant sees it [A] (:meth:`identification.logs.seeklog.SeekLog.input_current`).
+    instants : sequence of int
+        Sample indices, increasing (at least 3).
+    velocity : sequence of float
+        The rigid body's velocity at each instant [track/s].
+    k0 : float
+        Rigid-body gain [track/(A s^2)].
+    dt, delay_s : float
+        Sample period and input delay [s].
+    """
+    k_ = np.asarray(instants, dtype=int)
+    v = np.asarray(velocity, dtype=float)
+    if len(k_) < 3 or np.any(np.diff(k_) <= 0) or len(v) != len(k_):
+        raise ValueError(f"momentum_bias: need at least 3 increasing instants with a velocity each, got {len(k_)}")
+    u = np.asarray(current_a, dtype=float)
+    L = u.shape[1] if u.ndim == 2 else 1
+    _, dv_in, _ = _increments(u.reshape(-1), dt / L, delay_s)
+    cs = np.r_[0.0, np.cumsum(dv_in)]
+    dV = cs[L * k_[1:]] - cs[L * k_[:-1]]
+    gf_v = _rigid_block(dt / L)[4][1] * L            # velocity per sample of a unit force [s]
+    n = np.diff(k_).astype(float)
+    bj = (np.diff(v) / k0 - dV) / (gf_v * n)
+    w = n / n.sum()
+    b = float(w @ bj)
+    k = len(bj)
+    std = float(np.sqrt(np.sum(w ** 2 * (bj - b) ** 2) * k / max(k - 1, 1)))
+    return BiasEstimate(b, std, k, float(n.sum() * dt))
+
+
+def whole_log_bias(current_a, position_track, rest_windows, k0: float, dt: float, delay_s: float = 0.0) -> BiasEstimate:
+    """:func:`momentum_bias` with the velocity at the middle of each rest window (e.g. the settle
+    windows) taken as the LS slope of the position over it -- model-free, exact for a uniformly
+    accelerated head, approximate while it still settles.
+
+    Parameters
+    ----------
+    position_track : array_like
+        Measured head position [track].
+    rest_windows : sequence of (int, int)
+        Half-open index ranges where the head rests (at least 3 of them, 4 samples each).
+    current_a, k0, dt, delay_s
+        As :func:`momentum_bias`.
+    """
+    y = np.asarray(position_track, dtype=float)
+    wins = sorted((int(a), int(b)) for a, b in rest_windows if b - a >= 4)
+    if len(wins) < 3:
+        raise ValueError(f"whole_log_bias: need at least 3 rest windows of 4 samples, got {len(wins)}")
+    centres, v = [], []
+    for a, b in wins:
+        if (b - a) % 2 == 0:                         # an odd count: the middle is a sample
+            a += 1
+        t = (np.arange(b - a) - (b - a - 1) / 2) * dt
+        v.append(np.polyfit(t, y[a:b], 1)[0])
+        centres.append((a + b - 1) // 2)
+    return momentum_bias(current_a, centres, v, k0, dt, delay_s)

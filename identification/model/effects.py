@@ -2,7 +2,7 @@
 
 Each effect is a small dataclass with a name (its key in the plant JSON,
 ``{"effect": name, "params": {...}}``) and acts on the plant in one of four
-ways, so that :class:`identification.model.plant.DiscretePlant` can step any
+ways, so that :class:`identification.model.discrete.DiscretePlant` can step any
 combination of them with the one discretisation:
 
 ``structural``
@@ -20,6 +20,16 @@ combination of them with the one discretisation:
 
 Units: position in tracks, velocity in track/s, current in A; a *force* is
 expressed as the current that would produce it (force / torque constant).
+
+Each formula is written once and evaluates on numbers and on CasADi symbols: every hook
+takes a backend ``ops`` (:mod:`identification.model.ops`; default :data:`~identification.model.ops.NUMPY`,
+``casadi_ops(smooth)`` for the design NLP) and uses only its functions::
+
+    input_map(u, position, ops=NUMPY) -> current [A]      (kind "input")
+    force(position, velocity, ops=NUMPY) -> force [A]     (kind "force")
+    output(t, ops=NUMPY) -> position [track]              (kind "output")
+
+On numpy the hooks are vectorised (arrays in, arrays out).
 """
 from __future__ import annotations
 
@@ -27,6 +37,8 @@ from dataclasses import asdict, dataclass, field
 from typing import ClassVar
 
 import numpy as np
+
+from identification.model.ops import NUMPY
 
 __all__ = [
     "Effect", "InputDelay", "AmplifierLag", "PivotSpringDamper", "ExtraMode",
@@ -50,14 +62,17 @@ class Effect:
         return {"effect": self.name, "params": self.params}
 
     # Hooks; each subclass overrides the one(s) of its kind.
-    def input_map(self, u: float, position: float) -> float:
+    def input_map(self, u, position, ops=NUMPY):
+        """Command current [A] after this effect, at head position ``position`` [track]."""
         return u
 
-    def force(self, position: float, velocity: float) -> float:
-        return 0.0
+    def force(self, position, velocity, ops=NUMPY):
+        """Undelayed current-equivalent force [A] at ``position`` [track], ``velocity`` [track/s]."""
+        return 0.0 * velocity
 
-    def output(self, t: np.ndarray | float) -> np.ndarray | float:
-        return 0.0 * np.asarray(t, dtype=float)
+    def output(self, t, ops=NUMPY):
+        """Signal added to the measured position [track] at time ``t`` [s]."""
+        return 0.0 * ops.asarray(t)
 
 
 # --- structural (linear) ---------------------------------------------------------
@@ -91,8 +106,10 @@ class PivotSpringDamper(Effect):
     name: ClassVar[str] = "pivot_spring_damper"
     kind: ClassVar[str] = "structural"
 
-    def force(self, position: float, velocity: float) -> float:
-        return 0.0  # the offset is handled exactly in the linear model (see plant.py)
+    def rest_force_a(self, k0: float) -> float:
+        """Constant force [A] of the rest offset: the spring ``-w^2 (p - rest)`` is the linear
+        ``-w^2 p`` (in the state matrix) plus ``w^2 rest / k0`` as a current-equivalent force."""
+        return (2.0 * np.pi * self.freq_hz) ** 2 * self.rest_track / k0
 
 
 @dataclass
@@ -115,8 +132,12 @@ class CurrentSaturation(Effect):
     name: ClassVar[str] = "current_saturation"
     kind: ClassVar[str] = "input"
 
-    def input_map(self, u: float, position: float) -> float:
-        return min(max(u, -self.limit_a), self.limit_a)
+    def __post_init__(self):
+        if not self.limit_a > 0:
+            raise ValueError(f"current_saturation: limit_a must be > 0 (got {self.limit_a})")
+
+    def input_map(self, u, position, ops=NUMPY):
+        return ops.clip(u, -self.limit_a, self.limit_a)
 
 
 @dataclass
@@ -130,12 +151,13 @@ class TorqueConstantVariation(Effect):
     name: ClassVar[str] = "torque_constant_variation"
     kind: ClassVar[str] = "input"
 
-    def factor(self, position):
-        x = (np.asarray(position, dtype=float) - self.center_track) / self.scale_track
-        return 1.0 + sum(c * x ** (i + 1) for i, c in enumerate(self.coeffs))
+    def factor(self, position, ops=NUMPY):
+        """``Kt(p) / Kt0`` [-] at ``position`` [track]."""
+        x = (ops.asarray(position) - self.center_track) / self.scale_track
+        return 1.0 + ops.sum([float(c) * x ** (i + 1) for i, c in enumerate(self.coeffs)] or [0.0 * x])
 
-    def input_map(self, u: float, position: float) -> float:
-        return u * float(self.factor(position))
+    def input_map(self, u, position, ops=NUMPY):
+        return u * self.factor(position, ops)
 
 
 # --- state-dependent forces (nonlinear) --------------------------------------------
@@ -150,8 +172,15 @@ class PositionBias(Effect):
     name: ClassVar[str] = "position_bias"
     kind: ClassVar[str] = "force"
 
-    def force(self, position: float, velocity: float) -> float:
-        return float(np.interp(position, self.knots_track, self.bias_a))
+    def __post_init__(self):
+        k = np.asarray(self.knots_track, dtype=float)
+        if k.ndim != 1 or len(k) < 1 or len(k) != len(self.bias_a):
+            raise ValueError("position_bias: knots_track and bias_a must be equal-length, non-empty lists")
+        if np.any(np.diff(k) <= 0):
+            raise ValueError("position_bias: knots_track must be strictly increasing")
+
+    def force(self, position, velocity, ops=NUMPY):
+        return ops.interp(position, self.knots_track, self.bias_a)
 
 
 @dataclass
@@ -164,8 +193,8 @@ class Friction(Effect):
     name: ClassVar[str] = "friction"
     kind: ClassVar[str] = "force"
 
-    def force(self, position: float, velocity: float) -> float:
-        return -self.coulomb_a * float(np.sign(velocity)) - self.viscous_a_per_tps * velocity
+    def force(self, position, velocity, ops=NUMPY):
+        return -self.coulomb_a * ops.sign(velocity) - self.viscous_a_per_tps * velocity
 
 
 # --- output signals ----------------------------------------------------------------
@@ -182,13 +211,13 @@ class PeriodicDisturbance(Effect):
     name: ClassVar[str] = "periodic_disturbance"
     kind: ClassVar[str] = "output"
 
-    def output(self, t):
-        t = np.asarray(t, dtype=float)
-        out = np.zeros_like(t)
+    def output(self, t, ops=NUMPY):
+        t = ops.asarray(t)
+        terms = [0.0 * t]
         for h, a, b in zip(self.harmonics, self.cos_track, self.sin_track):
-            ph = 2 * np.pi * h * self.spindle_hz * t
-            out = out + a * np.cos(ph) + b * np.sin(ph)
-        return out
+            ph = float(2 * np.pi * h * self.spindle_hz) * t
+            terms.append(float(a) * ops.cos(ph) + float(b) * ops.sin(ph))
+        return ops.sum(terms)
 
 
 EFFECTS: dict[str, type[Effect]] = {

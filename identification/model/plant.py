@@ -29,6 +29,7 @@ where ``f[k]`` is the undelayed force channel (bias, state-dependent forces).
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import math
@@ -52,6 +53,16 @@ TRACK_PITCH_PER_TPI_NM = 25.4e6
 
 class PlantError(ValueError):
     """A plant file or description that cannot be used (one-line message)."""
+
+
+def _json_number(value, key: str, source: str, none_ok: bool = False):
+    """A JSON number as float; a string, bool or list is a :class:`PlantError`, not converted."""
+    if value is None and none_ok:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        what = f"the string {value!r}" if isinstance(value, str) else type(value).__name__
+        raise PlantError(f"{source}: {key} must be a number, got {what}"[:200])
+    return float(value)
 
 
 @dataclass
@@ -133,16 +144,33 @@ class ModalPlant:
 
     @classmethod
     def from_dict(cls, d: dict, source: str = "plant") -> "ModalPlant":
+        """Build a plant from its JSON dict; numbers must be JSON numbers (a quoted ``"3.9e9"`` is
+        refused, not converted), then :meth:`validate`.  Raises :class:`PlantError` (one line)."""
+        if not isinstance(d, dict):
+            raise PlantError(f"{source}: plant JSON must be an object")
         try:
             if d.get("schema", 1) != 1:
                 raise PlantError(f"{source}: unsupported plant schema {d.get('schema')!r}")
+            if "k0" not in d:
+                raise PlantError(f"{source}: missing key 'k0' (rigid-body gain, track/(A s^2))")
+            num = _json_number
+            modes = d.get("modes", [])
+            if not isinstance(modes, list):
+                raise PlantError(f"{source}: 'modes' must be a list of objects")
+            for i, m in enumerate(modes, 1):
+                if not isinstance(m, dict):
+                    raise PlantError(f"{source}: mode {i} is not an object")
+                for key in ("freq_hz", "zeta", "gain"):
+                    if key not in m:
+                        raise PlantError(f"{source}: mode {i}: missing key {key!r}")
+                    num(m[key], f"mode {i} {key}", source)
             plant = cls(
-                k0=float(d["k0"]),
-                modes=[Mode.from_dict(m) for m in d.get("modes", [])],
-                bias_a=float(d.get("bias_a", 0.0)),
-                delay_s=float(d.get("delay_s", 0.0)),
-                sample_rate_hz=None if d.get("sample_rate_hz") is None else float(d["sample_rate_hz"]),
-                track_pitch_nm=None if d.get("track_pitch_nm") is None else float(d["track_pitch_nm"]),
+                k0=num(d["k0"], "k0", source),
+                modes=[Mode.from_dict(m) for m in modes],
+                bias_a=num(d.get("bias_a", 0.0), "bias_a", source),
+                delay_s=num(d.get("delay_s", 0.0), "delay_s", source),
+                sample_rate_hz=num(d.get("sample_rate_hz"), "sample_rate_hz", source, none_ok=True),
+                track_pitch_nm=num(d.get("track_pitch_nm"), "track_pitch_nm", source, none_ok=True),
                 effects=[effect_from_dict(e) for e in d.get("effects", [])],
                 std=dict(d.get("std") or {}),
                 meta=dict(d.get("meta") or {}),
@@ -155,16 +183,39 @@ class ModalPlant:
         return plant
 
     def validate(self, source: str = "plant") -> None:
+        """Refuse a plant no drive can have (one-line :class:`PlantError` naming ``source``).
+
+        Checked: every parameter finite; ``k0 > 0``; ``delay_s >= 0``; ``sample_rate_hz`` and
+        ``track_pitch_nm`` positive when given; each mode ``freq_hz > 0``, ``zeta >= 0``; and for a
+        plant identified from a log (``meta["method"]`` set by ``identify``) every mode below the
+        Nyquist frequency of ``sample_rate_hz`` -- a sampled log cannot show a mode at or above it.
+        (A physical or truth model may keep modes above Nyquist: the simulator samples them.)
+        """
         vals = [self.k0, self.bias_a, self.delay_s] + [v for m in self.modes for v in (m.freq_hz, m.zeta, m.gain)]
-        if not all(math.isfinite(v) for v in vals):
+        try:
+            finite = all(math.isfinite(v) for v in vals)
+        except TypeError:
+            raise PlantError(f"{source}: plant parameters must be numbers") from None
+        if not finite:
             raise PlantError(f"{source}: plant has a non-finite parameter")
         if self.k0 <= 0:
-            raise PlantError(f"{source}: k0 must be > 0 (got {self.k0})")
+            raise PlantError(f"{source}: k0 must be > 0 track/(A s^2) (got {self.k0:g})")
         if self.delay_s < 0:
-            raise PlantError(f"{source}: delay_s must be >= 0 (got {self.delay_s})")
-        for m in self.modes:
+            raise PlantError(f"{source}: delay_s must be >= 0 s (got {self.delay_s:g})")
+        for key, unit in (("sample_rate_hz", "Hz"), ("track_pitch_nm", "nm")):
+            v = getattr(self, key)
+            if v is not None and not (math.isfinite(v) and v > 0):
+                raise PlantError(f"{source}: {key} must be a positive number of {unit} or null (got {v:g})")
+        for i, m in enumerate(self.modes, 1):
             if m.freq_hz <= 0 or m.zeta < 0:
-                raise PlantError(f"{source}: mode at {m.freq_hz} Hz needs freq_hz > 0 and zeta >= 0")
+                raise PlantError(f"{source}: mode {i} at {m.freq_hz:g} Hz needs freq_hz > 0 and zeta >= 0")
+        fs = self.sample_rate_hz
+        if fs is not None and (self.meta or {}).get("method"):
+            for i, m in enumerate(self.modes, 1):
+                if m.freq_hz >= fs / 2:
+                    raise PlantError(f"{source}: mode {i} at {m.freq_hz:g} Hz is at or above the Nyquist "
+                                     f"frequency {fs / 2:g} Hz of sample_rate_hz {fs:g}: a log sampled at "
+                                     f"that rate cannot identify it (check freq_hz and sample_rate_hz)")
 
     def to_json(self, path: str | Path | None = None) -> str:
         text = json.dumps(self.to_dict(), indent=2)
@@ -212,8 +263,10 @@ class ModalPlant:
         return self.copy(k0=self.k0 * self.track_pitch_nm / pitch, track_pitch_nm=pitch)
 
     def linear_part(self) -> "ModalPlant":
-        """The plant without nonlinear/output effects and bias (for linear design)."""
-        keep = [e for e in self.effects if e.kind == "structural"]
+        """The linear map current -> position (for linear design): structural effects only, no
+        bias and no pivot rest offset (both are constant forces, affine terms of the model)."""
+        keep = [dataclasses.replace(e, rest_track=0.0) if isinstance(e, PivotSpringDamper) else e
+                for e in self.effects if e.kind == "structural"]
         return self.copy(effects=keep, bias_a=0.0)
 
     @property

@@ -1,28 +1,30 @@
-"""The whole pipeline on one seek log (``seekopt demo``).
+"""The whole pipeline on one seek log (``seekopt demo``): the four recipes of ``examples/`` in sequence.
 
-Stages, each timed and reported; a failing stage stops the demo with a one-line
-:class:`DemoError` (the traceback goes to ``<out>/demo-error.log``):
+Stages, each timed (a progress line with the elapsed time on stderr; ``quiet`` silences it) and each
+returning a small result object; a failing stage stops the demo with a one-line :class:`DemoError`
+(the traceback goes to ``<out>/demo-error.log``):
 
-1. **log** -- read the log (default: the bundled synthetic ``seekopt/data/sample_log.npz``,
-   120 seeks of ``seekopt synth`` with its defaults; its truth plant is bundled beside it);
-2. **identify** -- :func:`identification.estimate.identify.identify` (robust method);
-3. **close the loop** -- :mod:`identification.loop.closing` (residual analysis, model augmentation);
-   skipped, and said so, where that module is not available;
-4. **design & bench** -- optimal profiles for a set of seek lengths at the log's track
-   density, benchmarked against sine and windowed sine (:mod:`seekopt.evaluate.sweep`, one TPI), and,
-   when the truth plant is known, the same profiles run on the truth;
-5. **sweep** -- a small TPI x length sweep (local process pool) that extends the bench folder;
-6. **export** -- C, CSV and JSON firmware tables (:mod:`seekopt.export.tables`);
-7. **report** -- ``report.md`` (+ ``report.html``) with figures, and a summary table printed.
+1. **log** -- read the log (default: the bundled synthetic ``seekopt/data/sample_log.npz``, 120 seeks
+   of ``seekopt synth``; its truth plant is bundled beside it);
+2. **identify** -- :func:`identification.estimate.identify.identify` (``examples/identify_a_log.py``);
+3. **close the loop** -- :func:`identification.loop.closing.close_loop` (``examples/close_the_loop.py``);
+4. **design & bench** -- one robust :class:`seekopt.design.ocp.SeekDesigner` built once, called for each
+   seek length, benched against sine / windowed sine by :func:`seekopt.evaluate.bench.run_bench` on the
+   truth plant when known, else on the identified plant (``examples/design_and_bench.py``);
+5. **sweep** -- a small TPI x length sweep (:func:`seekopt.evaluate.sweep.run_sweep`, local process pool);
+6. **export** -- C, CSV and JSON firmware tables of the sweep's optimal profiles
+   (:mod:`seekopt.export.tables`; ``examples/sweep_and_export.py``);
+7. **report** -- a self-contained ``report.html`` (figures embedded) and ``report.md``
+   (:func:`seekopt.app.demo_report.demo_report`).
 
-Everything is written under the output folder (default ``./seekopt-out``); a sweep folder left
-there by an earlier demo with another plant or settings is moved aside (``sweep-<hash>``), one with
-the same settings is resumed.  The drive's controller is taken to be the NSS benchmark controller
-(the one the bundled log was recorded with).
+Speed (``seekopt demo`` <= 3 min on an idle 2-core machine): the design and sweep lengths stop at 1000
+tracks (a robust 3000-track design alone takes tens of seconds), the designer is built once for the
+bench, and the sweep runs in a two-worker process pool while the bench runs in this process.  Each
+stage's CPU time is logged beside its wall time (on a shared machine the wall time says little).
 """
 from __future__ import annotations
 
-import json
+import sys
 import time
 import traceback
 from contextlib import contextmanager
@@ -32,7 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["DemoError", "DemoConfig", "run_demo", "identify_plant", "close_loop", "sample_log_path"]
+__all__ = ["DemoError", "DemoConfig", "DemoResult", "run_demo", "identify_plant", "close_loop",
+           "sample_log_path", "sample_truth", "first_seeks", "loop_is_stable"]
 
 
 class DemoError(ValueError):
@@ -41,109 +44,200 @@ class DemoError(ValueError):
 
 @dataclass
 class DemoConfig:
-    """What the demo does.  ``quick`` (for tests) uses the first 60 seeks of the log and shrinks
-    the design set and the sweep."""
+    """What the demo does (currents in A, band in track, lengths in track).
+
+    ``quick`` (for tests) uses the first 40 seeks (16 for the loop), two lengths and a 2 x 2 sweep."""
 
     log: str | None = None
     outdir: str = "seekopt-out"
     quick: bool = False
+    quiet: bool = False
     imax: float = 0.3
     settle: float = 0.1
-    lengths: tuple = (1, 10, 100, 1000, 3000)
+    lengths: tuple = (1, 10, 100, 1000)
     sweep_tpi_factors: tuple = (1.0, 2.0, 5.0)
-    sweep_lengths: tuple = (10, 100, 1000, 3000)
+    sweep_lengths: tuple = (10, 100, 1000)
     workers: int = 2
     html: bool = True
-    designer: str = "ocp-robust"
     max_seeks: int | None = None
+    loop_seeks: int | None = None
 
     def __post_init__(self):
         if self.quick:
-            self.lengths, self.sweep_lengths, self.sweep_tpi_factors = (10, 1000), (10, 1000), (1.0, 3.0)
-            self.max_seeks = self.max_seeks or 60
+            self.lengths, self.sweep_lengths, self.sweep_tpi_factors = (10, 100), (10, 100), (1.0, 3.0)
+            self.max_seeks, self.loop_seeks = self.max_seeks or 40, 16
+
+
+# ------------------------------------------------------------------ helpers (public, used by examples/)
+def sample_log_path() -> Path:
+    """The bundled sample log."""
+    return Path(str(resources.files("seekopt").joinpath("data/sample_log.npz")))
+
+
+def sample_truth():
+    """The truth plant of the bundled sample log (the synthetic drive it was recorded on)."""
+    from identification.model.plant import ModalPlant
+    return ModalPlant.load(sample_log_path().with_suffix(".truth.json"))
+
+
+def first_seeks(log, n: int | None):
+    """The log up to the start of its ``n+1``-th seek (target change); the whole log if ``n`` is None."""
+    starts = np.nonzero(np.diff(log.target_track) != 0)[0] + 1
+    return log if n is None or len(starts) <= n else log.slice(0, int(starts[n]))
 
 
 def loop_is_stable(plant, controller, n: int = 3000) -> bool:
-    """Does the linear 2DOF loop of ``plant`` and ``controller`` decay?  (Impulse response from the
-    reference over ``n`` servo samples, by the one simulator; a stable loop decays by many decades.)"""
+    """Does the linear 2DOF loop of ``plant`` and ``controller`` decay (impulse response from the
+    reference over ``n`` servo samples, by the one simulator)?"""
     from seekopt.drive.simulator import closed_loop_responses
     y = closed_loop_responses(plant, controller, n)["y_r"]
     peak = float(np.max(np.abs(y))) if np.all(np.isfinite(y)) else float("inf")
     return bool(np.isfinite(peak) and np.max(np.abs(y[-n // 10:])) < 1e-3 * peak)
 
 
-def first_seeks(log, n: int):
-    """The log up to the start of its ``n+1``-th seek (target change)."""
-    starts = np.nonzero(np.diff(log.target_track) != 0)[0] + 1
-    return log if len(starts) <= n else log.slice(0, int(starts[n]))
+# ------------------------------------------------------------------ stage results
+@dataclass
+class IdentifyStage:
+    ident: object                  # identification.estimate.identify.Identification
+    plant: object                  # identified plant, track pitch and sample rate filled in
+    warning: str = ""
 
 
-def sample_log_path() -> Path:
-    """The bundled sample log."""
-    return Path(str(resources.files("seekopt").joinpath("data/sample_log.npz")))
+@dataclass
+class LoopStage:
+    result: object                 # identification.loop.closing.LoopResult
+    design_plant: object           # the augmented plant without output (disturbance) effects
+    seeks: int                     # seeks fed to the loop
+    dropped: list = field(default_factory=list)
 
 
-def _sample_truth():
-    from identification.model.plant import ModalPlant
-    return ModalPlant.load(str(resources.files("seekopt").joinpath("data/sample_log.truth.json")))
+@dataclass
+class BenchStage:
+    results: list                  # BenchResult per seek length (evaluated on ``evaluated_on``)
+    evaluated_on: str              # "truth" or "identified"
+    model_settle_s: dict           # {(tracks, label): seek-settle time [s] on the identified plant}
+    figure: Path | None = None
 
 
-# ------------------------------------------------------------------ stage adapters
-def identify_plant(log):
-    """``identify(log).plant`` with the log's track pitch and sample rate filled in.
+@dataclass
+class SweepStage:
+    summary: object                # seekopt.evaluate.sweep.SweepSummary
+    table: object                  # pandas.DataFrame (results.csv)
+    folder: Path
 
-    Returns ``(plant, notes)``; ``notes`` is a dict of what identification reported.
-    """
+
+@dataclass
+class ExportStage:
+    tables: object                 # seekopt.export.tables.TableSet
+    paths: list
+
+
+@dataclass
+class DemoResult:
+    config: DemoConfig
+    log: object
+    truth: object
+    controller: object
+    identify: IdentifyStage
+    loop: LoopStage
+    bench: BenchStage
+    sweep: SweepStage
+    export: ExportStage
+    stages: list = field(default_factory=list)     # (name, status, wall s, note, CPU s of this process)
+    cpu_s: float = float("nan")                    # CPU of this process and its (reaped) sweep workers [s]
+    report: Path | None = None
+
+
+# ------------------------------------------------------------------ stages
+def identify_plant(log) -> IdentifyStage:
+    """``identify(log)`` with the log's track pitch and sample rate filled into the plant."""
     from identification.estimate.identify import identify
-    res = identify(log)
-    plant = res.plant
+    ident = identify(log)
+    plant = ident.plant
     if plant.track_pitch_nm is None and log.track_pitch_nm is not None:
         plant = plant.copy(track_pitch_nm=log.track_pitch_nm)
     if plant.sample_rate_hz is None:
         plant = plant.copy(sample_rate_hz=log.sample_rate_hz)
-    notes = {k: getattr(res, k) for k in ("method", "fit_percent", "fit_percent_rigid", "residual_rms")
-             if hasattr(res, k)}
-    return plant, notes
+    return IdentifyStage(ident, plant)
 
 
-def close_loop(log, plant):
-    """:func:`identification.loop.closing.close_loop` on ``(log, plant)`` (held-out seeks validate).
-
-    Returns ``(plant, summary)``: the (possibly augmented) plant and a short Markdown summary,
-    or ``(plant, None)`` when the module is not available (the stage is then reported skipped).
-    """
-    try:
-        from identification.loop.closing import close_loop as _close
-    except ImportError:
-        return plant, None
-    res = _close(log, plant)
-    eb, ea = res.error_before, res.error_after
-    lines = [f"Validation RMS error {eb['rms_track']:.4g} -> {ea['rms_track']:.4g} track "
-             f"(fit {eb['fit_percent']:.1f} % -> {ea['fit_percent']:.1f} %); accepted effects: "
-             + (", ".join(res.accepted) or "none") + "."]
-    tried = [f"- {s.effect}: validation RMS {s.rms_before:.4g} -> {s.rms_after:.4g} track, "
-             f"BIC drop {s.bic_drop:.1f}, {'accepted' if s.accepted else 'rejected'}" for s in res.steps]
-    if tried:
-        lines += ["", "Candidates tried:", ""] + tried
-    if res.unexplained:
-        lines += ["", "Still in the residual:", ""] + [f"- {u}" for u in res.unexplained]
-    return res.plant, "\n".join(lines)
+def close_loop(log, plant, seeks: int | None = None) -> LoopStage:
+    """:func:`identification.loop.closing.close_loop` on the first ``seeks`` seeks (default all; odd ones
+    validate).
+    Output effects (disturbances such as run-out) stay in the result but not in the design plant:
+    settle metrics are disturbance-free, as on the truth plant."""
+    from identification.loop.closing import close_loop as augment
+    part = first_seeks(log, seeks)
+    res = augment(part, plant)
+    dropped = [e.name for e in res.plant.effects if e.kind == "output"]
+    design = res.plant.copy(effects=[e for e in res.plant.effects if e.kind != "output"])
+    return LoopStage(res, design, int(np.count_nonzero(np.diff(part.target_track))), dropped)
 
 
-# ------------------------------------------------------------------ stages
+def design_and_bench(plant, truth, controller, cfg: DemoConfig, figures: Path) -> BenchStage:
+    """One robust designer built once, called per length; each length benched against sine and
+    windowed sine (shortest within Imax and best length) on the truth (else the identified plant)."""
+    from seekopt.design.metrics import evaluate_profile
+    from seekopt.design.ocp import RobustSpec, SeekDesigner
+    from seekopt.evaluate.bench import plot_bench, run_bench
+    designer = SeekDesigner(plant, controller, cfg.imax, cfg.settle, RobustSpec())
+    results, model = [], {}
+    for L in cfg.lengths:
+        res = run_bench(plant, controller, L, cfg.imax, cfg.settle, truth=truth, designers={"optimal": designer})
+        results.append(res)
+        for r in res.rows:
+            if r.profile is not None:
+                m = evaluate_profile(plant, controller, r.profile, settle=cfg.settle, k0_for_tbb=plant.k0)
+                model[(L, r.label)] = m.settle_time_s if m.settled else float("nan")
+    show = next((r for r in results if r.tracks == 1000), results[len(results) // 2])
+    fs = float(controller.sample_rate_hz)
+    longest = max(r.profile.n / fs for r in show.rows if r.profile is not None)
+    settles = [r.settle_time_s for r in show.rows if np.isfinite(r.settle_time_s)]
+    tail = max(0.004, max(settles, default=0.0) - longest + 0.002)      # axis covers every settle time
+    fig = plot_bench(show, truth or plant, controller, figures, tail_s=tail)
+    return BenchStage(results, "truth" if truth is not None else "identified", model, fig)
+
+
+def sweep(plant, controller, cfg: DemoConfig, folder: Path, pool) -> SweepStage:
+    """A small TPI x length sweep of the design plant (TPIs relative to the log's track density)."""
+    import pandas as pd
+    from identification.model.plant import TRACK_PITCH_PER_TPI_NM
+    from seekopt.evaluate.sweep import ALL_KINDS, SweepConfig, run_sweep
+    native = TRACK_PITCH_PER_TPI_NM / plant.track_pitch_nm
+    scfg = SweepConfig(plant, controller, [round(native * f) for f in cfg.sweep_tpi_factors],
+                       list(cfg.sweep_lengths), cfg.imax, cfg.settle, designer="ocp-robust", kinds=ALL_KINDS)
+    if folder.exists():                           # an earlier demo's sweep is replaced, not resumed
+        import shutil
+        shutil.rmtree(folder)
+    s = run_sweep(scfg, folder, executor=pool, figures=True, progress=not cfg.quiet)
+    return SweepStage(s, pd.read_csv(s.table), folder)
+
+
+def export(folder: Path, out: Path) -> ExportStage:
+    from seekopt.export.tables import load_tables, write_tables
+    ts = load_tables(folder)
+    return ExportStage(ts, [p for fmt in ("c", "csv", "json") for p in write_tables(ts, fmt, out)])
+
+
 @dataclass
-class _Run:
+class _Stages:
     out: Path
-    stages: list = field(default_factory=list)   # (name, status, seconds, note)
+    quiet: bool
+    done: list = field(default_factory=list)   # [name, status, wall s, note, CPU s of this process]
     n: int = 7
+    t0: float = field(default_factory=time.perf_counter)
+
+    def say(self, text):
+        if not self.quiet:
+            print(text, file=sys.stderr, flush=True)
 
     @contextmanager
     def stage(self, name: str):
-        i = len(self.stages) + 1
-        print(f"[{i}/{self.n}] {name} ...", flush=True)
-        t0 = time.perf_counter()
-        rec = [name, "ok", 0.0, ""]
-        self.stages.append(rec)
+        i = len(self.done) + 1
+        self.say(f"[{i}/{self.n}] {name} ... (elapsed {time.perf_counter() - self.t0:.0f} s)")
+        t, c = time.perf_counter(), time.process_time()
+        rec = [name, "ok", 0.0, "", 0.0]
+        self.done.append(rec)
         try:
             yield rec
         except DemoError:
@@ -155,93 +249,21 @@ class _Run:
             msg = " ".join(str(exc).split())[:200]
             raise DemoError(f"stage {i} ({name}) failed: {type(exc).__name__}: {msg} "
                             f"(traceback in {log})") from None
-        rec[2] = time.perf_counter() - t0
-        print(f"[{i}/{self.n}] {name}: {rec[1]} in {rec[2]:.1f} s" + (f" - {rec[3]}" if rec[3] else ""),
-              flush=True)
+        rec[2], rec[4] = time.perf_counter() - t, time.process_time() - c
+        self.say(f"[{i}/{self.n}] {name}: {rec[1]} in {rec[2]:.1f} s, CPU {rec[4]:.1f} s "
+                 f"(elapsed {time.perf_counter() - self.t0:.0f} s)"
+                 + (f" - {rec[3]}" if rec[3] else ""))
 
 
-def _bench_on(plant, controller, profiles, settle, k0):
-    """Evaluate each ``(tracks, kind, profile)`` on ``plant``; rows as dicts."""
-    from seekopt.evaluate.sweep import evaluate
-    rows = []
-    for tracks, kind, prof in profiles:
-        rows.append(dict(tracks=tracks, kind=kind, **evaluate(plant, controller, prof, settle, None, k0)))
-    return rows
-
-
-def _set_aside_other_sweep(sweep_dir: Path, config_hash: str) -> None:
-    """A sweep folder of an earlier demo with another plant or settings is renamed, not reused."""
-    meta = sweep_dir / "sweep.json"
-    if not meta.exists():
-        return
-    try:
-        old = json.loads(meta.read_text()).get("config_hash", "unknown")
-    except ValueError:
-        old = "unreadable"
-    if old != config_hash:
-        dest = sweep_dir.with_name(f"sweep-{old}")
-        if dest.exists():
-            dest = sweep_dir.with_name(f"sweep-{old}-{int(time.time())}")
-        sweep_dir.rename(dest)
-        print(f"      (an earlier sweep with other settings moved to {dest})", flush=True)
-
-
-def _design_and_sweep(cfg, run, pool, plant, truth, controller, native, sweep_dir):
-    """Stages 4 and 5: bench at the log's TPI, then the small sweep (reusing the bench cells)."""
-    import pandas as pd
-    from seekopt.design.profiles import Profile
-    from seekopt.evaluate.sweep import ALL_KINDS, SweepConfig, baseline_profile, cell_key, load_cells, run_sweep
-    with run.stage("design and bench against sine / windowed sine") as rec:
-        bcfg = SweepConfig(plant, controller, [native], list(cfg.lengths), cfg.imax, cfg.settle,
-                           designer=cfg.designer, kinds=ALL_KINDS)
-        _set_aside_other_sweep(sweep_dir, bcfg.hash())
-        bs = run_sweep(bcfg, sweep_dir, executor=pool, figures=False)
-        cells = load_cells(sweep_dir)
-        bench = pd.read_csv(bs.table)
-        bench = bench[bench["tpi"] == bcfg.tpis[0]]
-        truth_rows = []
-        if truth is not None:
-            profs = []
-            for L in bcfg.tracks:
-                c = cells[cell_key(bcfg.tpis[0], L)]
-                if c.get("optimal_profile"):
-                    profs.append((L, "optimal", Profile.from_dict(c["optimal_profile"])))
-                for kind in ("sine", "windowed_sine"):
-                    profs.append((L, kind, baseline_profile(plant, controller.sample_rate_hz, kind, L,
-                                                            cfg.imax, cfg.settle)))
-                for kind, d in sorted(c.get("tuned_profiles", {}).items()):
-                    profs.append((L, kind, Profile.from_dict(d)))
-            truth_rows = _bench_on(truth, controller, profs, cfg.settle, plant.k0)
-        rec[3] = f"{len(bcfg.tracks)} lengths, {len(bs.failed_cells)} failed cells"
-
-    with run.stage("small TPI sweep") as rec:
-        tpis = [round(native * f) for f in cfg.sweep_tpi_factors]
-        scfg = SweepConfig(plant, controller, tpis, sorted(set(cfg.sweep_lengths) | set(cfg.lengths)),
-                           cfg.imax, cfg.settle, designer=cfg.designer, kinds=ALL_KINDS)
-        ss = run_sweep(scfg, sweep_dir, executor=pool, figures=True,
-                       progress=True)
-        sweep_df = pd.read_csv(ss.table)
-        rec[3] = (f"{ss.total} cells ({ss.skipped} reused from the bench), {ss.computed} computed "
-                  f"at {ss.cells_per_s:.2f} cells/s")
-
-    return bench, truth_rows, sweep_df, ss
-
-
-def run_demo(cfg: DemoConfig) -> dict:
-    """Run the pipeline; returns a dict with the report path, tables and stage timings."""
-    import pandas as pd
-    from identification.logs.seeklog import read_log
-    from identification.model.plant import TRACK_PITCH_PER_TPI_NM
-    from seekopt.app import report
+def run_demo(cfg: DemoConfig) -> DemoResult:
+    """Run the pipeline; returns every stage's result, the stage timings and the report path."""
+    from identification.logs import read_log
+    from seekopt.app.demo_report import demo_report, demo_summary
     from seekopt.drive.controller import Controller
-    from seekopt.export.tables import load_tables, write_tables
-    from seekopt.design.profiles import Profile
     from seekopt.evaluate.sweep import make_pool
     out = Path(cfg.outdir)
     out.mkdir(parents=True, exist_ok=True)
-    figs = out / "figures"
-    run = _Run(out)
-    t_start = time.perf_counter()
+    run = _Stages(out, cfg.quiet)
     controller = Controller.nss()
     truth = None
 
@@ -251,168 +273,57 @@ def run_demo(cfg: DemoConfig) -> dict:
         if cfg.max_seeks:
             log = first_seeks(log, cfg.max_seeks)
         if cfg.log is None:
-            truth = _sample_truth()
+            truth = sample_truth()
         rec[3] = f"{path.name}: {log.n} samples at {log.sample_rate_hz:g} Hz" + \
             (f" (first {cfg.max_seeks} seeks)" if cfg.max_seeks else "")
         if log.track_pitch_nm is None:
             raise DemoError(f"{path}: the log has no track_pitch_nm; the sweep needs the physical gain")
 
     with run.stage("identify the plant") as rec:
-        plant, id_notes = identify_plant(log)
-        plant.to_json(out / "plant.json")
-        rec[3] = f"k0 = {plant.k0:.4g} track/(A s^2), {len(plant.modes)} modes"
-        if not loop_is_stable(plant, controller):
-            id_notes["warning"] = (f"the closed loop of the identified plant with `{controller.name}` does not "
-                                   "decay (unstable model loop): designs and benches on it are not trustworthy")
+        ids = identify_plant(log)
+        ids.plant.to_json(out / "plant.json")
+        rec[3] = f"k0 = {ids.plant.k0:.4g} track/(A s^2), {len(ids.plant.modes)} modes"
+        if not loop_is_stable(ids.plant, controller):
+            ids.warning = (f"the closed loop of the identified plant with `{controller.name}` does not decay "
+                           "(unstable model loop): designs and benches on it are not trustworthy")
             rec[1], rec[3] = "warning", rec[3] + "; UNSTABLE model loop with the drive's controller"
 
-    with run.stage("close the loop") as rec:
-        plant2, loop_summary = close_loop(log, plant)
-        if loop_summary is None:
-            rec[1], rec[3] = "skipped", "identification.loop.closing not available"
-        else:
-            plant2.to_json(out / "plant.json")
-            rec[3] = loop_summary.splitlines()[0][:100]
-            # disturbances found in the residual (output effects, e.g. run-out) stay in plant.json but
-            # not in the design plant: settle metrics are disturbance-free, as on the truth plant
-            plant = plant2.copy(effects=[e for e in plant2.effects if e.kind != "output"])
-            dropped = [e.to_dict()["effect"] for e in plant2.effects if e.kind == "output"]
-            if dropped:
-                loop_summary += ("\n\nOutput effects (" + ", ".join(dropped) + ") are kept in `plant.json` "
-                                 "but left out of the design and bench plant: settle metrics are "
-                                 "disturbance-free, as on the truth plant.")
+    with run.stage("close the loop" + (f" (first {cfg.loop_seeks} seeks)" if cfg.loop_seeks else "")) as rec:
+        lps = close_loop(log, ids.plant, cfg.loop_seeks)
+        lps.result.plant.to_json(out / "plant.json")
+        rec[3] = (f"validation RMS {lps.result.error_before['rms_track']:.4g} -> "
+                  f"{lps.result.error_after['rms_track']:.4g} track; accepted: "
+                  + (", ".join(lps.result.accepted) or "none"))
 
-    native = TRACK_PITCH_PER_TPI_NM / plant.track_pitch_nm
-    sweep_dir = out / "sweep"
-    pool = make_pool(cfg.workers)  # one pool for both sweeps: workers keep their designers
+    # the sweep runs in the process pool beside the bench (one core each on an idle 2-core machine)
+    from concurrent.futures import ThreadPoolExecutor
+    pool, side = make_pool(cfg.workers), ThreadPoolExecutor(1, thread_name_prefix="demo-sweep")
     try:
-        bench, truth_rows, sweep_df, ss = _design_and_sweep(cfg, run, pool, plant, truth, controller,
-                                                            native, sweep_dir)
+        swept = side.submit(sweep, lps.design_plant, controller, cfg, out / "sweep", pool)
+        with run.stage("design and bench against sine / windowed sine (sweep running beside it)") as rec:
+            bench = design_and_bench(lps.design_plant, truth, controller, cfg, out / "figures")
+            rec[3] = f"{len(cfg.lengths)} lengths, evaluated on the {bench.evaluated_on} plant"
+        with run.stage("small TPI sweep (started with the bench; time after it)") as rec:
+            sw = swept.result()
+            rec[3] = (f"{sw.summary.total} cells, {len(sw.summary.failed_cells)} failed, "
+                      f"{sw.summary.wall_s:.0f} s in all")
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
+        side.shutdown(wait=True)
 
     with run.stage("export firmware tables") as rec:
-        ts = load_tables(sweep_dir)
-        paths = []
-        for fmt in ("c", "csv", "json"):
-            paths += write_tables(ts, fmt, out / "export")
-        rec[3] = f"{len(ts.tables)} tables, {ts.meta['ref_format']}"
+        ex = export(sw.folder, out / "export")
+        rec[3] = f"{len(ex.tables.tables)} tables, {ex.tables.meta['ref_format']}"
 
+    import resource
+    kids = resource.getrusage(resource.RUSAGE_CHILDREN)          # the sweep's workers, reaped above
+    result = DemoResult(cfg, log, truth, controller, ids, lps, bench, sw, ex, run.done,
+                        cpu_s=time.process_time() + kids.ru_utime + kids.ru_stime)
     with run.stage("write the report") as rec:
-        report_path = _write_report(cfg, out, figs, log, plant, truth, id_notes, loop_summary, bench,
-                                    truth_rows, sweep_df, ss, ts, paths, run, controller)
-        rec[3] = str(report_path)
+        result.report = demo_report(result, out)
+        rec[3] = str(result.report)
 
-    summary = _summary_table(bench, truth_rows)
-    print()
-    print(summary.to_string(index=False))
-    print(f"\nreport: {report_path}  (total {time.perf_counter() - t_start:.0f} s)")
-    return {"report": report_path, "bench": bench, "truth": truth_rows, "sweep": sweep_df,
-            "stages": run.stages, "summary": summary}
-
-
-# ------------------------------------------------------------------ report
-def _summary_table(bench, truth_rows):
-    """One row per (seek length, profile): seek time and seek-settle time [ms] on the identified
-    plant and, when known, on the truth plant."""
-    import pandas as pd
-    from seekopt.app.report import KIND_LABELS, seek_settle_s
-    from seekopt.evaluate.sweep import ALL_KINDS
-    b = bench.copy()
-    b["settle_ms"] = 1e3 * seek_settle_s(b)
-    out = pd.DataFrame({"tracks": b["tracks"], "kind": b["kind"], "seek [ms]": 1e3 * b["seek_time_s"],
-                        "seek-settle, model [ms]": b["settle_ms"]})
-    if truth_rows:
-        tr = pd.DataFrame(truth_rows).assign(status="ok")
-        tr["truth"] = 1e3 * seek_settle_s(tr)
-        out = out.merge(tr[["tracks", "kind", "truth"]], on=["tracks", "kind"], how="left")
-        out = out.rename(columns={"truth": "seek-settle, truth [ms]"})
-    out["order"] = [ALL_KINDS.index(k) for k in out["kind"]]
-    out = out.sort_values(["tracks", "order"]).drop(columns="order")
-    out["kind"] = [KIND_LABELS.get(k, k) for k in out["kind"]]
-    return out.rename(columns={"kind": "profile"}).reset_index(drop=True).round(3)
-
-
-def _plot_frf(plant, truth, path):
-    plt = __import__("seekopt.app.report", fromlist=["_plt"])._plt()
-    f = np.logspace(1.5, np.log10(13000), 600)
-    fig, ax = plt.subplots(figsize=(7, 3.6))
-    ax.loglog(f, np.abs(plant.frf(f)), "C3", label="identified")
-    if truth is not None:
-        ax.loglog(f, np.abs(truth.frf(f)), "k--", lw=0.9, label="truth (synthetic drive)")
-    ax.set_xlabel("frequency [Hz]")
-    ax.set_ylabel("|P(j2πf)| [track/A]")
-    ax.set_title("Plant frequency response")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend()
-    fig.tight_layout()
-    return __import__("seekopt.app.report", fromlist=["_save"])._save(fig, path)
-
-
-def _plot_traces(plant, truth, controller, cells, tpi, tracks, imax, settle, folder):
-    """Fig. 9/10-style traces (:func:`seekopt.evaluate.bench.plot_bench`) of the three profiles of one seek,
-    played on the truth plant when known, else on the identified plant."""
-    from seekopt.evaluate.bench import BenchResult, BenchRow, plot_bench
-    from seekopt.design.metrics import evaluate_profile
-    from seekopt.design.profiles import Profile
-    from seekopt.evaluate.sweep import baseline_profile, cell_key
-    evalp = truth or plant
-    c = cells.get(cell_key(tpi, tracks))
-    profs = [(k, baseline_profile(plant, controller.sample_rate_hz, k, tracks, imax, settle))
-             for k in ("sine", "windowed_sine")]
-    if c and c.get("optimal_profile"):
-        profs.append(("optimal", Profile.from_dict(c["optimal_profile"])))
-    rows = []
-    for kind, p in profs:
-        m = evaluate_profile(evalp, controller, p, settle=settle, k0_for_tbb=plant.k0)
-        rows.append(BenchRow(kind, kind, m, profile=p))
-    from seekopt.design.profiles import t_bang_bang
-    res = BenchResult(float(tracks), imax, settle, t_bang_bang(tracks, plant.k0, imax), rows)
-    return plot_bench(res, evalp, controller, Path(folder))
-
-
-def _write_report(cfg, out, figs, log, plant, truth, id_notes, loop_summary, bench, truth_rows,
-                  sweep_df, ss, ts, export_paths, run, controller):
-    from seekopt import __version__
-    from seekopt.app import report
-    from seekopt.evaluate.sweep import load_cells
-    sections = []
-    rows = [{"stage": s[0], "status": s[1], "time_s": s[2], "note": s[3]} for s in run.stages]
-    rows[-1]["time_s"], rows[-1]["note"] = float("nan"), "(this report)"
-    import pandas as pd
-    sections.append(("Pipeline", f"seekopt {__version__}; log `{cfg.log or 'bundled sample_log.npz'}`, "
-                     f"{log.n} samples at {log.sample_rate_hz:g} Hz; controller `{controller.name}`; "
-                     f"Imax {cfg.imax:g} A; settle band ±{cfg.settle:g} track.\n\n"
-                     + report.markdown_table(pd.DataFrame(rows), fmt=".1f"), []))
-    mt = pd.DataFrame([{"freq_hz": m.freq_hz, "zeta": m.zeta, "gain": m.gain} for m in plant.modes])
-    text = (f"k0 = {plant.k0:.5g} track/(A s²) (physical gain {plant.physical_gain:.4g} m/(A s²)), "
-            f"bias {plant.bias_a:.3g} A, delay {1e6 * plant.delay_s:.2f} µs. "
-            + ", ".join(f"{k}: {v:.4g}" if isinstance(v, float) else f"{k}: {v}" for k, v in id_notes.items())
-            + "\n\n" + (report.markdown_table(mt, fmt=".4g") if len(mt) else "(no modes)\n"))
-    if truth is not None:
-        tt = pd.DataFrame([{"freq_hz": m.freq_hz, "zeta": m.zeta, "gain": m.gain} for m in truth.modes])
-        text += f"\nTruth of the synthetic drive: k0 = {truth.k0:.5g}, bias {truth.bias_a:.3g} A.\n\n" + \
-            report.markdown_table(tt, fmt=".4g")
-    sections.append(("Identified plant", text, [_plot_frf(plant, truth, figs / "plant_frf.png")]))
-    sections.append(("Closing the loop", loop_summary or "Skipped: `identification.loop.closing` is not "
-                     "available in this installation.", []))
-    summary = _summary_table(bench, truth_rows)
-    cells = load_cells(out / "sweep")
-    L = 1000 if 1000 in cfg.lengths else sorted(cfg.lengths)[len(cfg.lengths) // 2]
-    trace = _plot_traces(plant, truth, controller, cells, float(bench["tpi"].iloc[0]), L,
-                         cfg.imax, cfg.settle, figs)
-    sections.append(("Bench: optimal vs sine and windowed sine",
-                     "Seek-settle time [ms] (seek start until the error stays within the band) on the "
-                     "identified plant" + (" and on the truth plant of the synthetic drive" if truth_rows else "")
-                     + "; – : not settled or failed.\n\n" + report.markdown_table(summary, fmt=".3g")
-                     + f"\nTraces of the {L:g}-track seek on the "
-                     + ("truth" if truth is not None else "identified") + " plant:\n", [trace]))
-    sv = report.savings_table(sweep_df)
-    sections.append(("TPI sweep", "The identified plant re-expressed per TPI (physical gain kept, "
-                     "controller gain scaled with the track pitch, settle band in tracks). "
-                     f"{ss.total} cells; results in `sweep/results.csv`.\n\n"
-                     + report.markdown_table(sv, fmt=".3g"), ss.figures))
-    sections.append(("Firmware export", f"{len(ts.tables)} tables; feedforward {ts.meta['ff_format']}; "
-                     f"reference {ts.meta['ref_format']}. Files: "
-                     + ", ".join(f"`{Path(p).relative_to(out)}`" for p in export_paths), []))
-    return report.write_report(out, "seekopt demo report", sections, html_too=cfg.html)
+    print(demo_summary(result).to_string(index=False))
+    print(f"\nreport: {result.report.with_suffix('.html')}  (total {time.perf_counter() - run.t0:.0f} s wall, "
+          f"{result.cpu_s:.0f} s CPU with the sweep's workers)")
+    return result

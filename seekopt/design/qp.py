@@ -1,4 +1,5 @@
-"""Condensed dense QP machinery for seek design: closed-loop convolution maps and solvers.
+"""The condensed dense seek-design QP: closed-loop convolution maps (:class:`LoopMaps`) and the
+QP of one seek-size class (:class:`SeekQP`).
 
 The 2DOF loop ``u = u_ff + C (r - y)`` around the linear part of a plant is linear and
 time-invariant at the servo rate, so the head position and the sub-step currents are
@@ -11,40 +12,20 @@ into Toeplitz rows on demand::
 
 (``l`` the ``L`` current sub-steps of sample ``k``; ``i_hold = -bias_a``).
 
-Solvers take the dense problem ``min 1/2 x'Hx + g'x  s.t. lba <= A x <= uba, lbx <= x <= ubx``
-with ``H`` and ``A`` as :class:`casadi.DM` (converted once by the caller, never per solve):
-
-* :class:`ConicQP` -- ``casadi.conic`` with a QP plugin (``daqp`` default; ``qpoases``,
-  ``highs``, ``osqp``, ``proxqp``, ``qrqp`` accepted), built once for a fixed size;
-* :class:`IpoptQP` -- the same problem as an ``Opti`` + Ipopt NLP (``hessian_constant``,
-  ``jac_c_constant``, ``jac_d_constant`` = yes) exported once with ``opti.to_function``.
-
-Both count their constructions in :data:`BUILD_COUNT` (for reuse tests and studies).
+The QP solvers (casadi.conic plugins, Ipopt, the fallback chain) are in :mod:`seekopt.design.solvers`.
 """
 from __future__ import annotations
 
 import time
-from collections import Counter
-from dataclasses import dataclass
 
-import casadi as ca
 import numpy as np
 
+from seekopt.design.profiles import rigid_endpoint_matrix
 from seekopt.drive.simulator import closed_loop_responses
+# solver names re-exported for callers of the former combined module
+from seekopt.design.solvers import QP_PLUGINS, ConicQP, IpoptQP, QPSolution, dm, make_qp_solver  # noqa: F401
 
-__all__ = ["LoopMaps", "toeplitz_rows", "hf_guard_matrix", "QPSolution", "ConicQP", "IpoptQP",
-           "make_qp_solver", "BUILD_COUNT", "QP_PLUGINS", "dm"]
-
-#: Number of solver constructions per kind (``"conic:daqp"``, ``"ipopt"``); reuse is visible here.
-BUILD_COUNT: Counter = Counter()
-#: ``casadi.conic`` plugins the designer accepts.
-QP_PLUGINS = ("daqp", "qpoases", "highs", "osqp", "proxqp", "qrqp")
-
-
-def dm(a: np.ndarray) -> ca.DM:
-    """numpy -> casadi.DM (dense).  Slow for big arrays (~0.1 s per million entries): do it once."""
-    a = np.asarray(a, dtype=float)
-    return ca.DM(a if a.ndim == 2 else a.reshape(-1, 1))
+__all__ = ["LoopMaps", "toeplitz_rows", "hf_guard_matrix", "mode_residual_phasors", "mode_residual_rows", "pes_row_samples", "SeekQP"]
 
 
 def toeplitz_rows(h: np.ndarray, rows: np.ndarray, ncols: int) -> np.ndarray:
@@ -112,18 +93,47 @@ class LoopMaps:
                 self.s_ir[rows].ravel())
 
 
-def hf_guard_matrix(k0: float, fs: float, L: int, nsub: int, f_lo: float, f_hi: float,
-                    gain: float = 1.0, spacing_hz: float | None = None, npoly: int = 4):
-    """Linear map from the sub-step current sequence to the residual vibration of unmodelled
-    modes in ``[f_lo, f_hi]`` [track].
+def mode_residual_phasors(k0: float, fs: float, L: int, nsub: int, freqs_hz, gains=1.0) -> np.ndarray:
+    """Complex map from the sub-step current sequence to the residual vibration of unmodelled modes.
 
     A mode ``k0 g / (s^2 + w^2)`` (undamped: conservative) driven by the ZOH current ``i_m``
     on sub-steps of ``h = 1/(L fs)`` is left vibrating with complex amplitude::
 
         z(w) = k0 g |1 - exp(-j w h)| / w^2 * sum_m i_m exp(-j w m h)        [track]
 
-    Each frequency gives ``npoly`` rows ``Re(exp(j theta) z)`` (theta = 0, pi/npoly, ...): bounding
-    them by ``tol`` bounds ``|z| <= tol / cos(pi / (2 npoly))``.
+    Parameters
+    ----------
+    freqs_hz : array_like
+        Mode frequencies [Hz] (any band: near and above Nyquist, inside controller notches...).
+    gains : float or array_like
+        Mode gain(s) relative to the rigid body, one per frequency or one for all.
+
+    Returns
+    -------
+    E : (nf, nsub) complex ndarray
+        ``z = E @ i`` [track] for sub-step currents ``i`` [A], ``m < nsub``.
+    """
+    h = 1.0 / (L * fs)
+    f = np.atleast_1d(np.asarray(freqs_hz, dtype=float))
+    g = np.broadcast_to(np.asarray(gains, dtype=float), f.shape)
+    w = 2 * np.pi * f
+    wt = k0 * g * np.abs(1 - np.exp(-1j * w * h)) / w ** 2
+    return wt[:, None] * np.exp(-1j * np.outer(w * h, np.arange(int(nsub))))
+
+
+def mode_residual_rows(E: np.ndarray, npoly: int = 4) -> np.ndarray:
+    """Linear rows bounding the complex residuals ``E @ i``: for each frequency ``npoly`` rows
+    ``Re(exp(j theta) z)`` (theta = 0, pi/npoly, ...); bounding them by ``tol`` bounds
+    ``|z| <= tol / cos(pi / (2 npoly))``.  Returns ``(nf * npoly, nsub)`` rows."""
+    th = np.arange(npoly) * np.pi / npoly
+    return (E[:, None, :] * np.exp(1j * th)[None, :, None]).real.reshape(-1, E.shape[1])
+
+
+def hf_guard_matrix(k0: float, fs: float, L: int, nsub: int, f_lo: float, f_hi: float,
+                    gain: float = 1.0, spacing_hz: float | None = None, npoly: int = 4):
+    """Guard rows for unmodelled modes of gain ``gain`` in ``[f_lo, f_hi]`` [Hz] on a grid of
+    ``spacing_hz`` (default ``fs / 64``): :func:`mode_residual_rows` of
+    :func:`mode_residual_phasors` (arbitrary bands: :mod:`seekopt.design.guard`).
 
     Returns
     -------
@@ -131,140 +141,9 @@ def hf_guard_matrix(k0: float, fs: float, L: int, nsub: int, f_lo: float, f_hi: 
         Rows acting on the sub-step currents ``i_m`` [A], ``m < nsub``.
     freqs : (nf,) ndarray
     """
-    h = 1.0 / (L * fs)
     spacing = spacing_hz or fs / 64.0
     freqs = np.arange(f_lo, f_hi + 0.5 * spacing, spacing)
-    m = np.arange(nsub)
-    rows = []
-    for f in freqs:
-        w = 2 * np.pi * f
-        wt = k0 * gain * abs(1 - np.exp(-1j * w * h)) / w ** 2
-        e = wt * np.exp(-1j * w * m * h)
-        for th in np.arange(npoly) * np.pi / npoly:
-            rows.append((e * np.exp(1j * th)).real)
-    return np.array(rows), freqs
-
-
-@dataclass
-class QPSolution:
-    """Result of one QP solve: ``x``, multipliers, status, wall time [s]."""
-
-    x: np.ndarray
-    lam_a: np.ndarray
-    lam_x: np.ndarray
-    success: bool
-    status: str
-    solve_time_s: float
-    cpu_time_s: float
-
-    @property
-    def infeasible(self) -> bool:
-        """The solver proved the problem infeasible (daqp exit flag -1, or 'infeasible' in the status)."""
-        st = self.status.lower()
-        return (not self.success) and (st == "-1" or ("infeas" in st and "violation" not in st))
-
-
-def _nan_safe(a, n):
-    a = np.asarray(a, dtype=float).ravel()
-    return a if a.size == n else np.full(n, np.nan)
-
-
-class ConicQP:
-    """``casadi.conic`` for a dense QP of fixed size ``(n, m)``, built once and reused.
-
-    Parameters
-    ----------
-    n, m : int
-        Variables and linear constraints.
-    plugin : str
-        ``daqp`` (default), ``qpoases``, ``highs``, ``osqp``, ``proxqp``, ``qrqp``.
-    options : dict, optional
-        Plugin options (merged over quiet defaults).
-    """
-
-    def __init__(self, n: int, m: int, plugin: str = "daqp", options: dict | None = None):
-        if plugin not in QP_PLUGINS:
-            raise ValueError(f"unknown QP plugin {plugin!r} (choose from {', '.join(QP_PLUGINS)})")
-        self.n, self.m, self.plugin = int(n), int(m), plugin
-        opts = {"error_on_fail": False, "verbose": False}
-        quiet = {"qpoases": {"printLevel": "none"}, "highs": {"highs": {"output_flag": False}},
-                 "osqp": {"osqp": {"verbose": False, "eps_abs": 1e-7, "eps_rel": 1e-7, "max_iter": 50000,
-                                   "polishing": True}},
-                 "proxqp": {"proxqp": {"backend": "dense", "eps_abs": 1e-9}},
-                 "qrqp": {"print_iter": False, "print_header": False, "print_info": False},
-                 "daqp": {"daqp": {"iter_limit": 5000}}}
-        opts.update(quiet.get(plugin, {}))
-        opts.update(options or {})
-        sp = {"h": ca.Sparsity.dense(self.n, self.n), "a": ca.Sparsity.dense(self.m, self.n)}
-        self._solver = ca.conic(f"seek_qp_{plugin}", plugin, sp, opts)
-        BUILD_COUNT[f"conic:{plugin}"] += 1
-        self.name = plugin
-
-    def solve(self, H: ca.DM, g, A: ca.DM, lba, uba, lbx, ubx, x0=None, lam_a0=None, lam_x0=None) -> QPSolution:
-        """Solve with numeric data (``H``, ``A`` as DM); ``x0``/``lam_*0`` warm-start plugins that use them."""
-        args = dict(h=H, g=g, a=A, lba=lba, uba=uba, lbx=lbx, ubx=ubx)
-        if x0 is not None:
-            args["x0"] = x0
-        if lam_a0 is not None:
-            args["lam_a0"] = lam_a0
-        if lam_x0 is not None:
-            args["lam_x0"] = lam_x0
-        t0, c0 = time.perf_counter(), time.process_time()
-        res = self._solver(**args)
-        dt, dc = time.perf_counter() - t0, time.process_time() - c0
-        st = self._solver.stats()
-        x = _nan_safe(res["x"], self.n)
-        ok = bool(st.get("success", False)) and bool(np.all(np.isfinite(x)))
-        return QPSolution(x, _nan_safe(res["lam_a"], self.m), _nan_safe(res["lam_x"], self.n), ok,
-                          str(st.get("return_status", st.get("unified_return_status", "?"))), dt, dc)
-
-
-class IpoptQP:
-    """The same dense QP as an ``Opti`` problem solved by Ipopt, exported once with
-    ``opti.to_function`` (the general NLP path; QP structure declared to Ipopt)."""
-
-    def __init__(self, n: int, m: int, options: dict | None = None):
-        self.n, self.m, self.name = int(n), int(m), "ipopt"
-        opti = ca.Opti()
-        x = opti.variable(self.n)
-        H, g = opti.parameter(self.n, self.n), opti.parameter(self.n)
-        A = opti.parameter(self.m, self.n)
-        lba, uba = opti.parameter(self.m), opti.parameter(self.m)
-        lbx, ubx = opti.parameter(self.n), opti.parameter(self.n)
-        opti.minimize(0.5 * ca.bilin(H, x, x) + ca.dot(g, x))
-        opti.subject_to(opti.bounded(lba, A @ x, uba))
-        opti.subject_to(opti.bounded(lbx, x, ubx))
-        ipopt = {"print_level": 0, "sb": "yes", "hessian_constant": "yes", "jac_c_constant": "yes",
-                 "jac_d_constant": "yes", "tol": 1e-9, "max_iter": 500, "mu_strategy": "adaptive"}
-        ipopt.update(options or {})
-        opti.solver("ipopt", {"print_time": False, "error_on_fail": False}, ipopt)
-        self._f = opti.to_function("seek_qp_ipopt", [H, g, A, lba, uba, lbx, ubx, x],
-                                   [x, opti.lam_g])
-        BUILD_COUNT["ipopt"] += 1
-
-    def solve(self, H, g, A, lba, uba, lbx, ubx, x0=None, lam_a0=None, lam_x0=None) -> QPSolution:
-        lbx, ubx = np.asarray(lbx, float), np.asarray(ubx, float)
-        # Ipopt cannot take lbx == ubx as free variables cheaply; it handles fixed bounds natively.
-        x0 = np.clip(np.zeros(self.n) if x0 is None else np.asarray(x0, float), lbx, ubx)
-        lba, uba = np.asarray(lba, float), np.asarray(uba, float)
-        t0, c0 = time.perf_counter(), time.process_time()
-        try:
-            x, lam = self._f(H, g, A, lba, uba, lbx, ubx, x0)
-            st = self._f.stats()
-            status = str(st.get("return_status", "?"))
-            ok = bool(st.get("success", False))
-        except RuntimeError as exc:  # ill-posed data (e.g. lb > ub)
-            x, lam, status, ok = np.full(self.n, np.nan), np.full(2 * self.m, np.nan), str(exc)[:80], False
-        dt, dc = time.perf_counter() - t0, time.process_time() - c0
-        x = _nan_safe(x, self.n)
-        lam = np.asarray(lam, float).ravel()
-        return QPSolution(x, lam[:self.m] if lam.size >= self.m else np.full(self.m, np.nan),
-                          np.zeros(self.n), ok and bool(np.all(np.isfinite(x))), status, dt, dc)
-
-
-def make_qp_solver(n: int, m: int, solver: str = "daqp", options: dict | None = None):
-    """:class:`IpoptQP` for ``solver="ipopt"``, else :class:`ConicQP` with that plugin."""
-    return IpoptQP(n, m, options) if solver == "ipopt" else ConicQP(n, m, solver, options)
+    return mode_residual_rows(mode_residual_phasors(k0, fs, L, nsub, freqs, gain), npoly), freqs
 
 
 # ---------------------------------------------------------------------------- the seek QP
@@ -306,7 +185,6 @@ class SeekQP:
                  band_plants: list, solver, *, epigraph: bool = False, R=None, hf=None, slew=None,
                  rho: float = 1e-2, rho_q: float = 1e-3, w_e: float = 1.0, w_t: float = 10.0,
                  eps: float = 1e-9, current_extra: int = 40, stride: int = 1):
-        from seekopt.design.profiles import rigid_endpoint_matrix
         t_build = time.perf_counter()
         N, Hn, L = int(nmax), int(horizon), maps[0].L
         self.N, self.horizon, self.imax, self.band, self.fs = N, Hn, float(imax), float(band), float(fs)
@@ -362,12 +240,14 @@ class SeekQP:
             G = hf[0]
             m = maps[0]
             Tiu, Tir, sir = m.current_rows(Hn, N if self.free_ref else Hn)
+            # the hold current -bias_a has been on since long before the seek: it leaves no residual in
+            # a mode (over the finite horizon it would look like a step and bias the guard)
             if self.free_ref:
                 a0, a1 = cols(imax * G @ Tiu / band, G @ Tir / band)
-                off0, off1 = G @ np.full(len(sir), m.hold_a) / band, G @ sir / band
+                off0, off1 = np.zeros(G.shape[0]), G @ sir / band
             else:
                 a0, a1 = cols(imax * G @ (Tiu[:, :N] + Tir @ Rfull) / band, None)
-                off0, off1 = G @ np.full(Tiu.shape[0], m.hold_a) / band, np.zeros(G.shape[0])
+                off0, off1 = np.zeros(G.shape[0]), np.zeros(G.shape[0])
             A0.append(a0); A1.append(a1); c0.append(off0); c1.append(off1)
             kinds += [("hf", 0, j) for j in range(G.shape[0])]
         M = rigid_endpoint_matrix(N, maps[0].k0, 1.0 / fs)
@@ -412,10 +292,16 @@ class SeekQP:
         w = 2 * w_e / E0.shape[0]
         self._P0, self._P1, self._P2 = P + w * E0.T @ E0, w * (E0.T @ E1 + E1.T @ E0), w * E1.T @ E1
         self._q1, self._q2 = w * E0.T @ e1, w * E1.T @ e1   # g = K q1 + K|K| q2
-        self._dm = {k: dm(v) for k, v in (("A0", self.A0), ("A1", self.A1), ("P0", self._P0),
-                                          ("P1", self._P1), ("P2", self._P2))}
+        self._dm_cache = None      # casadi copies of the full matrices, made on first full solve
         self.solver = solver(n, self.m)
         self.build_time_s = time.perf_counter() - t_build
+
+    @property
+    def _dm(self) -> dict:
+        if self._dm_cache is None:
+            self._dm_cache = {k: dm(v) for k, v in (("A0", self.A0), ("A1", self.A1), ("P0", self._P0),
+                                                    ("P1", self._P1), ("P2", self._P2))}
+        return self._dm_cache
 
     # ------------------------------------------------------------------ per design
     def data(self, K: float, nseek: int, beta: float | None, gamma: float, hf_tol: float | None,
@@ -425,13 +311,25 @@ class SeekQP:
         ``beta``: settle-band fraction on ``k >= nseek`` (None: band rows free); ``gamma``: current
         fraction of ``Imax``; ``hf_tol``: guard tolerance in bands.
         """
-        aK, sK = abs(K), np.sign(K)
+        aK = abs(K)
+        g, lba, uba, lbx, ubx = self.bounds(K, nseek, beta, gamma, hf_tol, slew_a_per_s)
+        H = self._dm["P0"] + aK * self._dm["P1"] + aK * aK * self._dm["P2"]
+        A = self._dm["A0"] + aK * self._dm["A1"]
+        return H, g, A, lba, uba, lbx, ubx
+
+    def matrices(self, K: float):
+        """``(H, A)`` of a seek of ``K`` tracks as numpy arrays (for reduced problems)."""
+        aK = abs(K)
+        return self._P0 + aK * self._P1 + aK * aK * self._P2, self.A0 + aK * self.A1
+
+    def bounds(self, K: float, nseek: int, beta: float | None, gamma: float, hf_tol: float | None,
+               slew_a_per_s: float | None = None):
+        """``(g, lba, uba, lbx, ubx)`` (numpy) of :meth:`data`."""
+        aK = abs(K)
         N, n = self.N, self.n
         if not 0 < nseek <= N:
             raise ValueError(f"nseek {nseek} outside 1..{N}")
-        H = self._dm["P0"] + aK * self._dm["P1"] + aK * aK * self._dm["P2"]
         g = K * self._q1 + K * aK * self._q2
-        A = self._dm["A0"] + aK * self._dm["A1"]
         c = self.c0 + K * self.c1
         lba = np.full(self.m, -np.inf); uba = np.full(self.m, np.inf)
         kind, smp, pl = self.kind, self.sample, self.plant_idx
@@ -458,14 +356,15 @@ class SeekQP:
             lbx[N:N + nseek], ubx[N:N + nseek] = -2.0, 2.0
         if self.nt:
             lbx[-1], ubx[-1] = 0.0, np.inf
-        return H, g, A, lba, uba, lbx, ubx
+        return g, lba, uba, lbx, ubx
 
-    def violation(self, x: np.ndarray, K: float, lba, uba, lbx, ubx) -> float:
+    def violation(self, x: np.ndarray, K: float, lba, uba, lbx, ubx, A=None) -> float:
         """Largest constraint violation of ``x`` relative to the size of the terms summed in each
-        row (``max(1, sum_j |a_ij x_j|)``: the cancellation level) -- re-checks a solver's answer."""
+        row (``max(1, sum_j |a_ij x_j|)``: the cancellation level) -- re-checks a solver's answer.
+        ``A``: the constraint matrix at ``K`` when already at hand."""
         if not np.all(np.isfinite(x)):
             return float("inf")
-        A = self.A0 + abs(K) * self.A1
+        A = self.A0 + abs(K) * self.A1 if A is None else A
         ax = A @ x
         scale = np.maximum(1.0, np.abs(A) @ np.abs(x))
         v = np.concatenate([(lba - ax) / scale, (ax - uba) / scale, lbx - x, x - ubx])

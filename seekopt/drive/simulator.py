@@ -24,9 +24,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import signal
 
+from identification.model.discrete import block_tf, zoh
 from identification.model.plant import ModalPlant
 
-__all__ = ["Disturbances", "SimResult", "simulate_2dof", "closed_loop_responses"]
+__all__ = ["Disturbances", "SimResult", "simulate_2dof", "closed_loop_responses", "flutter_filter"]
 
 
 @dataclass
@@ -65,14 +66,11 @@ class Disturbances:
         d = self.sensor_noise_track * rng.standard_normal(n)
         ts = 1.0 / fs
         for fl in self.flutter:
-            w = 2 * math.pi * fl["freq_hz"]
-            z = fl["zeta"]
-            num, den, _ = signal.cont2discrete(([fl["peak_gain_track"] * 2 * z * w ** 2], [1, 2 * z * w, w ** 2]),
-                                               ts, method="zoh")
+            num, den = flutter_filter(fl, ts)
             # a few hundred samples of pre-roll so the filter is in steady state
-            pre = int(min(20000, 10.0 / (z * w * ts)))
+            pre = int(min(20000, 10.0 / (fl["zeta"] * 2 * math.pi * fl["freq_hz"] * ts)))
             e = rng.standard_normal(n + pre)
-            d += signal.lfilter(np.ravel(num), den, e)[pre:]
+            d += signal.lfilter(num, den, e)[pre:]
         t = t0 + ts * np.arange(n)
         for h, a, ph in self.rro_harmonics:
             d += a * np.sin(2 * math.pi * h * self.spindle_hz * t + ph)
@@ -84,6 +82,19 @@ class Disturbances:
 
     def force_disturbance(self, n: int, rng) -> np.ndarray:
         return self.force_noise_a * rng.standard_normal(n)
+
+
+def flutter_filter(term: dict, ts: float):
+    """``(b, a)`` (powers of ``z^-1``) of one flutter term ``a 2 zeta w^2 / (s^2 + 2 zeta w s + w^2)``
+    driven by a sample held over ``ts`` [s]: the one ZOH of :mod:`identification.model.discrete`
+    (:func:`~identification.model.discrete.zoh`, :func:`~identification.model.discrete.block_tf`)."""
+    w = 2 * math.pi * term["freq_hz"]
+    z = term["zeta"]
+    A = np.array([[0.0, 1.0], [-w * w, -2 * z * w]])
+    B = np.array([[0.0], [term["peak_gain_track"] * 2 * z * w * w]])
+    Phi, G = zoh(A, B, ts)
+    num, den = block_tf(Phi, np.array([1.0, 0.0]), G[:, 0])
+    return np.r_[0.0, num], den
 
 
 @dataclass

@@ -1,9 +1,9 @@
 """Benchmark optimal seek profiles against the paper's sine and windowed-sine currents.
 
 Each baseline comes twice, with the paper's 2DOF reference from the rigid model: the shortest one
-within ``Imax`` (:func:`seekopt.design.profiles.shortest_baseline`) and the best-length ("tuned") one,
-the duration that settles soonest on the evaluation plant (:func:`tuned_baseline`); the optimal
-variants come from :class:`seekopt.design.ocp.SeekDesigner` on the design plant.  Every profile is then played on the
+within ``Imax`` and the best-length ("tuned") one, the duration that settles soonest on the evaluation
+plant (both from :mod:`seekopt.design.baselines`, re-exported here); the optimal variants come from
+:class:`seekopt.design.designer.SeekDesigner` on the design plant.  Every profile is then played on the
 evaluation plant (a truth plant when given, else the design plant) by the one simulator
 (:func:`seekopt.design.metrics.evaluate_profile`).  Figures in the style of the paper's Fig. 9/10:
 current, PES and the response of one mode (default: the one nearest 1738 Hz) versus time.
@@ -19,18 +19,21 @@ import numpy as np
 
 from identification.model.plant import ModalPlant, Mode
 
+from seekopt.design.baselines import TUNE_FACTORS, baseline_profile, tuned_baseline  # noqa: F401 (re-exported)
+from seekopt.design.designer import DesignInfeasible, SeekDesigner
 from seekopt.design.metrics import SeekMetrics, evaluate_profile, simulate_profile
-from seekopt.design.ocp import DesignInfeasible, RobustSpec, SeekDesigner
-from seekopt.design.profiles import Profile, finish_profile, shortest_baseline, t_bang_bang
+from seekopt.design.problem import SeekProblem
+from seekopt.design.profiles import Profile, t_bang_bang
+from seekopt.design.family import Drift
+from seekopt.design.robust import RobustSpec
 
 __all__ = ["BenchRow", "BenchResult", "baseline_profile", "tuned_baseline", "perturbed_plant", "mode_response",
            "run_bench", "format_table", "plot_bench", "DEFAULT_ROBUST", "TUNE_FACTORS"]
 
-#: Robust variant of the bench: the :class:`~seekopt.design.ocp.RobustSpec` defaults (see its docstring).
-DEFAULT_ROBUST = RobustSpec()
-#: Durations tried by :func:`tuned_baseline`, as multiples of the shortest within ``Imax``: 4 % steps
-#: from 1 to 8 (rounded to whole samples, duplicates dropped).
-TUNE_FACTORS = tuple(float(f) for f in np.unique(np.round(1.04 ** np.arange(54), 4)))
+#: Robust variant of the bench: what ``seekopt design`` does by default, a
+#: :class:`~seekopt.design.family.Drift` with every range from the data (reported std, the family's
+#: spread, seek-induced modes +-5 %).
+DEFAULT_ROBUST = Drift()
 _METRIC_FIELDS = frozenset(f.name for f in fields(SeekMetrics))
 
 
@@ -79,37 +82,6 @@ class BenchResult:
         return next(r for r in self.rows if r.label == label)
 
 
-def baseline_profile(plant: ModalPlant, fs: float, kind: str, tracks: float, imax: float,
-                     settle: float = 0.1) -> Profile:
-    """Shortest ``kind`` baseline within ``imax`` with the rigid-model reference (paper, Fig. 7)."""
-    u = shortest_baseline(kind, tracks, plant.k0, fs, imax)
-    rigid = ModalPlant(k0=plant.k0, delay_s=plant.total_delay_s)
-    return finish_profile(u, tracks, fs, imax, rigid, kind, settle_track=settle,
-                          meta={"plant_hash": plant.hash()})
-
-
-def tuned_baseline(plant: ModalPlant, controller, kind: str, tracks: float, imax: float, settle: float = 0.1, *,
-                   tune_on: ModalPlant | None = None, factors=TUNE_FACTORS, horizon_s: float | None = None):
-    """Best-length ``kind`` baseline: the :func:`baseline_profile` shape and rigid-model reference (from
-    ``plant``) at the duration ``round(f * n0)`` samples, ``f`` in ``factors`` and ``n0`` the shortest
-    within ``imax``, that has the least seek-settle time on ``tune_on`` (default ``plant``; ties: the
-    shorter).  Returns ``(profile, metrics on tune_on)``."""
-    from seekopt.design.profiles import sine_profile, windowed_sine_profile
-    shape = {"sine": sine_profile, "windowed_sine": windowed_sine_profile}[kind]
-    fs = float(controller.sample_rate_hz)
-    n0 = len(shortest_baseline(kind, tracks, plant.k0, fs, imax))
-    rigid = ModalPlant(k0=plant.k0, delay_s=plant.total_delay_s)
-    best = None
-    for n in sorted({max(2, int(round(f * n0))) for f in factors}):
-        prof = finish_profile(shape(tracks, n / fs, plant.k0, fs), tracks, fs, imax, rigid, kind,
-                              settle_track=settle, meta={"plant_hash": plant.hash(), "tuned_from_samples": n0})
-        m = evaluate_profile(tune_on or plant, controller, prof, settle=settle, horizon_s=horizon_s,
-                             k0_for_tbb=plant.k0)
-        if best is None or m.settle_time_s < best[1].settle_time_s:
-            best = (prof, m)
-    return best
-
-
 def perturbed_plant(plant: ModalPlant, fs: float, freq_pct: float = 2.0, gain_pct: float = 20.0,
                     delay_s: float = 3e-6, drop_above: float = 0.45) -> ModalPlant:
     """A stand-in for an identified plant: mode frequencies and gains off by alternating
@@ -135,7 +107,7 @@ def mode_response(plant: ModalPlant, mode: Mode, current_a, fs: float) -> np.nda
 def run_bench(plant: ModalPlant, controller, tracks: float, imax: float, settle: float = 0.1, *,
               truth: ModalPlant | None = None, robust=DEFAULT_ROBUST, figures=None,
               designers: dict | None = None, horizon_s: float | None = None, mode_hz: float = 1738.0,
-              tuned: bool = True) -> BenchResult:
+              tuned: bool = True, family=()) -> BenchResult:
     """Sine, windowed sine and optimal profiles for one seek, evaluated on ``truth`` (or ``plant``).
 
     Parameters
@@ -144,8 +116,11 @@ def run_bench(plant: ModalPlant, controller, tracks: float, imax: float, settle:
         Design plant (identified).
     truth : ModalPlant, optional
         Evaluation plant (default: ``plant``).
-    robust : RobustSpec, str or None
-        Uncertainty of the robust optimal variant (default :data:`DEFAULT_ROBUST`; None: nominal only).
+    robust : Drift, RobustSpec, str or None
+        Uncertainty of the robust optimal variant (default :data:`DEFAULT_ROBUST`; a string is read as
+        a ``RobustSpec``; None: nominal only).
+    family : sequence of ModalPlant
+        Further members of the plant family the robust variant holds (``plant`` is the nominal one).
     figures : path, optional
         Folder for the Fig. 9/10-style plot.
     designers : dict, optional
@@ -170,10 +145,11 @@ def run_bench(plant: ModalPlant, controller, tracks: float, imax: float, settle:
             prof = tuned_baseline(plant, controller, kind, tracks, imax, settle, tune_on=evalp, horizon_s=horizon_s)[0]
             add(f"{kind} tuned", "tuned", prof, time.perf_counter() - t0, note=f"{prof.seek_samples} samples")
     if designers is None:
-        designers = {"optimal": SeekDesigner(plant, controller, imax, settle)}
-        if robust:
+        designers = {"optimal": SeekDesigner(SeekProblem(plant, controller, imax, settle))}
+        if robust or family:
             spec = RobustSpec.from_string(robust) if isinstance(robust, str) else robust
-            designers["optimal robust"] = SeekDesigner(plant, controller, imax, settle, spec)
+            designers["optimal robust"] = SeekDesigner(SeekProblem(plant, controller, imax, settle, robust=spec,
+                                                                   family=list(family)))
     for label, des in designers.items():
         t0 = time.perf_counter()
         try:
@@ -183,7 +159,7 @@ def run_bench(plant: ModalPlant, controller, tracks: float, imax: float, settle:
             rows.append(BenchRow(label, "optimal", failed, note=f"{type(exc).__name__}: {exc}"[:200]))
             continue
         add(label, "optimal", res.profile, time.perf_counter() - t0,
-            note=f"{res.objective}, {res.n_solves} QPs {res.solve_time_s * 1e3:.0f} ms")
+            note=f"{res.objective}, {res.n_solves} QPs {res.solve_time_s * 1e3:.0f} ms; " + _predicted(res))
     for attr, kind in (("ratio_best_baseline", "baseline"), ("ratio_tuned_baseline", "tuned")):
         ref = [r.settle_time_s for r in rows if r.kind == kind]
         if ref:
@@ -194,6 +170,18 @@ def run_bench(plant: ModalPlant, controller, tracks: float, imax: float, settle:
     if figures:
         out.figures.append(plot_bench(out, evalp, controller, Path(figures), mode_hz=mode_hz))
     return out
+
+
+def _predicted(res) -> str:
+    """What ``design`` predicted for a profile (next to what the evaluation plant does in the table)."""
+    ms = res.metrics.settle_time_s * 1e3
+    txt = f"predicted {ms:.3f} ms nominal"
+    if res.prediction is not None:
+        w = res.prediction
+        txt += f", {w.worst_metrics.settle_time_s * 1e3:.3f} ms worst of {len(w.labels)} ('{w.labels[w.worst]}')"
+    if res.guard is not None:
+        txt += f", guard {res.guard.worst_band:.2f} band at {res.guard.worst_hz:.0f} Hz"
+    return txt
 
 
 def format_table(res: BenchResult) -> str:

@@ -1,23 +1,50 @@
 """Where sweep cells run: in process, on a local process pool, or on a Dask cluster.
 
-Every engine is an iterator ``(payload, result, exception)`` over the payloads, in completion
-order, so the caller saves each result as soon as it arrives and an engine failure of one
-payload never stops the others.  ``fn(payload)`` must be a picklable module-level function.
+Every engine has the same small interface, so the driving loop (:func:`seekopt.evaluate.sweep.run_sweep`)
+submits work lazily -- at most :attr:`Engine.capacity` payloads in flight, each claimed just
+before it is submitted -- and saves each result as soon as it arrives; an engine failure of one
+payload never stops the others:
 
-* :func:`iter_serial` -- one after the other, in this process;
-* :func:`iter_pool` -- a :class:`concurrent.futures.ProcessPoolExecutor` (:func:`make_pool`:
-  ``spawn``, workers ignore Ctrl-C so the driving process saves what is done); processes, not
-  threads, because Ipopt with MUMPS is not thread-safe;
-* :func:`iter_dask` -- ``dask.distributed``: ``"local"`` starts a loopback
-  :class:`~dask.distributed.LocalCluster` (one thread per worker process), or a scheduler
-  address ``tcp://HOST:PORT`` / ``tls://HOST:PORT``, or an existing client.
+``submit(payload) -> handle``, ``wait(handles, timeout) -> [(handle, result, exception), ...]``
+(the finished ones, at least one unless the timeout expires), ``close()`` (also a context manager).
+
+* :class:`SerialEngine` -- one after the other, in this process;
+* :class:`PoolEngine` -- a :class:`concurrent.futures.ProcessPoolExecutor` (:func:`make_pool`);
+  processes, not threads, because Ipopt with MUMPS is not thread-safe;
+* :class:`DaskEngine` -- ``dask.distributed``: ``"local"`` starts a loopback
+  :class:`~dask.distributed.LocalCluster` (one thread per worker process), or a scheduler address
+  ``tcp://HOST:PORT`` / ``tls://HOST:PORT``, or an existing client.
+
+Worker processes of :func:`make_pool` (set up by :func:`_worker_init`):
+
+* **one BLAS thread each** -- seekopt sets ``OMP_NUM_THREADS``, ``OPENBLAS_NUM_THREADS``,
+  ``MKL_NUM_THREADS`` to 1 and limits an already loaded BLAS with threadpoolctl: the design's
+  matrices are small, and several workers with several BLAS threads each oversubscribe the
+  cores (Dask's nanny does the same for its workers; :func:`worker_held` applies it on any
+  other Dask worker);
+* **they die with their parent** -- on Linux ``prctl(PR_SET_PDEATHSIG, SIGKILL)`` (when the pool
+  is made from the main thread, whose exit is the process's), and everywhere a watchdog thread
+  that exits the worker when its parent process is gone; so SIGKILL, SIGTERM or SIGINT of the
+  sweep never leaves workers (or the multiprocessing resource tracker, which exits when they do)
+  computing for nobody;
+* they ignore Ctrl-C: the driving process handles it (saves what is done, stops the workers).
+
+What a worker builds (a designer, see :class:`seekopt.evaluate.sweep.CellRunner`) it keeps with
+:func:`worker_held`, on the worker itself, not in a module-level cache.
 """
 from __future__ import annotations
 
 import os
+import sys
+import threading
+import time
 import uuid
 
-__all__ = ["EngineError", "iter_serial", "iter_pool", "iter_dask", "make_pool", "one_line"]
+__all__ = ["EngineError", "Engine", "SerialEngine", "PoolEngine", "DaskEngine", "make_engine", "make_pool",
+           "worker_held", "one_blas_thread", "one_line"]
+
+_BLAS_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "VECLIB_MAXIMUM_THREADS")
+_PR_SET_PDEATHSIG = 1
 
 
 class EngineError(ValueError):
@@ -30,83 +57,251 @@ def one_line(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {text}"[:300]
 
 
-def iter_serial(fn, payloads):
-    """Run ``fn`` on each payload in this process."""
-    for p in payloads:
+# ------------------------------------------------------------------ worker set-up
+def one_blas_thread() -> None:
+    """Limit this process to one BLAS/OpenMP thread (environment for libraries loaded later,
+    threadpoolctl for those already loaded)."""
+    for var in _BLAS_VARS:
+        os.environ[var] = "1"
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:      # pragma: no cover - threadpoolctl is a dependency
+        return
+    threadpool_limits(1)
+
+
+def _die_with_parent(parent_pid: int, pdeathsig: bool) -> None:
+    """Exit this (worker) process when ``parent_pid`` is gone: the kernel's parent-death signal
+    (Linux) and a watchdog thread that polls the parent pid (any POSIX system)."""
+    if pdeathsig and sys.platform.startswith("linux"):
         try:
-            yield p, fn(p), None
-        except Exception as exc:  # noqa: BLE001 - reported per payload
-            yield p, None, exc
+            import ctypes
+            import signal
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+        except (OSError, AttributeError):
+            pass
+    if os.getppid() != parent_pid:       # the parent died before the signal was armed
+        os._exit(1)
+
+    def watch():
+        while True:
+            time.sleep(0.5)
+            if os.getppid() != parent_pid:
+                os._exit(1)
+    threading.Thread(target=watch, name="seekopt-parent-watchdog", daemon=True).start()
 
 
-def _worker_init() -> None:
-    """Pool workers leave Ctrl-C to the driving process (which saves what is done and stops)."""
+def _worker_init(parent_pid: int | None = None, pdeathsig: bool = True) -> None:
+    """Pool worker set-up: ignore Ctrl-C, one BLAS thread, die with the parent (module notes)."""
     import signal
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    one_blas_thread()
+    if parent_pid is not None and os.name == "posix":
+        _die_with_parent(parent_pid, pdeathsig)
 
 
 def make_pool(workers: int | None = None):
-    """A process pool (``spawn``: no fork of a threaded parent; a script that uses it needs the
-    ``if __name__ == "__main__":`` guard).  Its workers keep module-level caches between calls."""
+    """A process pool whose workers have one BLAS thread and die with this process (module notes).
+
+    ``spawn`` start method (no fork of a threaded parent; a script that uses it needs the
+    ``if __name__ == "__main__":`` guard).  Its workers keep what they built
+    (:func:`worker_held`) between calls, so a pool reused across sweeps stays warm.
+    """
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor
+    main = threading.current_thread() is threading.main_thread()
     return ProcessPoolExecutor(max_workers=workers or os.cpu_count() or 1, mp_context=mp.get_context("spawn"),
-                               initializer=_worker_init)
+                               initializer=_worker_init, initargs=(os.getpid(), main))
 
 
-def iter_pool(fn, payloads, workers: int | None = None, executor=None):
-    """Run ``fn`` on a process pool (``executor``, left running, or a new one of ``workers``)."""
-    from concurrent.futures import as_completed
-    ex = executor or make_pool(workers)
-    futs = {ex.submit(fn, p): p for p in payloads}
-    try:
-        for fut in as_completed(futs):
-            exc = fut.exception()
-            yield futs[fut], (None if exc else fut.result()), exc
-    finally:
-        for f in futs:
-            f.cancel()
-        if executor is None:
-            ex.shutdown(wait=True, cancel_futures=True)
+_HOLD_LOCK = threading.Lock()
 
 
-def iter_dask(fn, payloads, address: str = "local", workers: int | None = None, client=None,
-              key=lambda p: "task"):
-    """Run ``fn`` on a Dask cluster; ``key(payload)`` names each task (a unique suffix is added).
+def worker_held(factory):
+    """``factory()``, built once in this worker and kept by the worker itself.
+
+    On a Dask worker the object hangs on the :class:`distributed.Worker`, in a pool worker on its
+    :func:`multiprocessing.current_process` object, so it lives exactly as long as the worker; the
+    first call on a Dask worker also limits it to one BLAS thread.
+    """
+    holder = None
+    if "distributed" in sys.modules:
+        try:
+            from distributed import get_worker
+            holder = get_worker()
+        except (ImportError, ValueError):
+            holder = None
+    on_dask = holder is not None
+    if holder is None:
+        import multiprocessing as mp
+        holder = mp.current_process()
+    key = f"_seekopt_held_{factory.__module__}.{factory.__qualname__}"
+    with _HOLD_LOCK:
+        obj = getattr(holder, key, None)
+        if obj is None:
+            if on_dask:
+                one_blas_thread()
+            obj = factory()
+            setattr(holder, key, obj)
+        return obj
+
+
+# ------------------------------------------------------------------ engines
+class Engine:
+    """Common interface (see the module notes)."""
+
+    name = "engine"
+    capacity = 1
+
+    def submit(self, payload):
+        raise NotImplementedError
+
+    def wait(self, handles, timeout=None) -> list:
+        raise NotImplementedError
+
+    def close(self, cancel: bool = False) -> None:
+        pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, typ, exc, tb):
+        self.close(cancel=typ is not None)
+
+
+class SerialEngine(Engine):
+    """Run ``fn(payload)`` in this process, at submission."""
+
+    name = "serial"
+
+    def __init__(self, fn):
+        self.fn, self.capacity = fn, 1
+
+    def submit(self, payload):
+        done = _Done()
+        try:
+            done.result = self.fn(payload)
+        except Exception as exc:  # noqa: BLE001 - reported per payload
+            done.exc = exc
+        return done
+
+    def wait(self, handles, timeout=None) -> list:
+        return [(h, h.result, h.exc) for h in handles]
+
+
+class _Done:
+    """A finished serial computation (hashable handle)."""
+
+    result = None
+    exc = None
+
+
+class PoolEngine(Engine):
+    """A local process pool (``executor``, left running, or a new :func:`make_pool` of ``workers``)."""
+
+    name = "process"
+
+    def __init__(self, fn, workers: int | None = None, executor=None):
+        self.fn, self.own = fn, executor is None
+        self.ex = executor or make_pool(workers)
+        self.capacity = int(getattr(self.ex, "_max_workers", None) or workers or os.cpu_count() or 1)
+
+    def submit(self, payload):
+        return self.ex.submit(self.fn, payload)
+
+    def wait(self, handles, timeout=None) -> list:
+        from concurrent.futures import FIRST_COMPLETED, wait
+        done, _ = wait(handles, timeout=timeout, return_when=FIRST_COMPLETED)
+        out = []
+        for f in done:
+            exc = f.exception()
+            out.append((f, None if exc else f.result(), exc))
+        return out
+
+    def close(self, cancel: bool = False) -> None:
+        if not self.own:
+            return
+        if cancel:       # interrupted: stop the workers now rather than finish their cells for nobody
+            procs = list((getattr(self.ex, "_processes", None) or {}).values())
+            self.ex.shutdown(wait=False, cancel_futures=True)
+            for p in procs:
+                if p.is_alive():
+                    p.terminate()
+            for p in procs:
+                p.join(5)
+        else:
+            self.ex.shutdown(wait=True, cancel_futures=True)
+
+
+class DaskEngine(Engine):
+    """A Dask cluster: ``address`` ``"local"`` (a loopback LocalCluster of ``workers`` processes with one
+    thread each), a scheduler ``tcp://HOST:PORT``, or an existing ``client``.
 
     Raises
     ------
     EngineError
         The local cluster cannot start or the scheduler cannot be reached (within 20 s).
     """
-    from dask.distributed import Client, LocalCluster, as_completed
-    cluster = own = None
-    if client is None:
-        try:
-            if address == "local":
-                cluster = LocalCluster(n_workers=workers or 2, threads_per_worker=1, processes=True,
-                                       host="127.0.0.1", dashboard_address=None)
-                client = own = Client(cluster)
-            else:
-                client = own = Client(address, timeout="20s")
-        except (OSError, RuntimeError, TimeoutError, ValueError) as exc:
-            if cluster is not None:
-                cluster.close()
-            where = "cannot start a local Dask cluster" if address == "local" else f"cannot connect to {address}"
-            raise EngineError(f"dask: {where} ({one_line(exc)})") from None
-    try:
-        futs = {}
-        for p in payloads:
-            f = client.submit(fn, p, pure=False, key=f"seekopt-{key(p)}-{uuid.uuid4().hex[:8]}")
-            futs[f.key] = (f, p)
-        for f in as_completed([f for f, _ in futs.values()]):
-            p = futs[f.key][1]
+
+    name = "dask"
+
+    def __init__(self, fn, address: str = "local", workers: int | None = None, client=None,
+                 key=lambda p: "task"):
+        from dask.distributed import Client, LocalCluster
+        self.fn, self.key, self.cluster, self.own = fn, key, None, None
+        if client is None:
             try:
-                yield p, f.result(), None
+                if address == "local":
+                    self.cluster = LocalCluster(n_workers=workers or 2, threads_per_worker=1, processes=True,
+                                                host="127.0.0.1", dashboard_address=None)
+                    client = self.own = Client(self.cluster)
+                else:
+                    client = self.own = Client(address, timeout="20s")
+            except (OSError, RuntimeError, TimeoutError, ValueError) as exc:
+                if self.cluster is not None:
+                    self.cluster.close()
+                where = "cannot start a local Dask cluster" if address == "local" else f"cannot connect to {address}"
+                raise EngineError(f"dask: {where} ({one_line(exc)})") from None
+        self.client = client
+        try:
+            self.capacity = max(1, sum(client.nthreads().values()))
+        except Exception:  # noqa: BLE001 - a scheduler that does not answer: submit anyway
+            self.capacity = workers or 2
+
+    def submit(self, payload):
+        return self.client.submit(self.fn, payload, pure=False,
+                                  key=f"seekopt-{self.key(payload)}-{uuid.uuid4().hex[:8]}")
+
+    def wait(self, handles, timeout=None) -> list:
+        from dask.distributed import wait
+        try:
+            done, _ = wait(handles, timeout=timeout, return_when="FIRST_COMPLETED")
+        except TimeoutError:
+            return []
+        out = []
+        for f in done:
+            try:
+                out.append((f, f.result(), None))
             except Exception as exc:  # noqa: BLE001 - reported per payload
-                yield p, None, exc
-    finally:
-        if own is not None:
-            own.close()
-        if cluster is not None:
-            cluster.close()
+                out.append((f, None, exc))
+        return out
+
+    def close(self, cancel: bool = False) -> None:
+        if self.own is not None:
+            self.own.close()
+        if self.cluster is not None:
+            self.cluster.close()
+
+
+def make_engine(engine: str, fn, workers: int | None = None, *, client=None, executor=None,
+                key=lambda p: "task") -> Engine:
+    """The engine named ``engine`` (``serial``, ``process``, ``local``, ``tcp://...``) running ``fn``;
+    an existing Dask ``client`` or pool ``executor`` takes precedence."""
+    if client is not None:
+        return DaskEngine(fn, client=client, key=key)
+    if executor is not None or engine == "process":
+        return PoolEngine(fn, workers, executor)
+    if engine == "serial":
+        return SerialEngine(fn)
+    return DaskEngine(fn, engine, workers, key=key)

@@ -20,26 +20,32 @@ Results folder layout
     ``os.replace``) by the driving process as soon as the cell completes: the
     table rows of that cell, the optimal profile and a computation id.
 ``journal.log``
-    Append-only, fsync'ed audit: ``run <config> engine=... todo=... t=<unix time>`` per run and
-    ``computed <key> <id> t=<unix time>`` per computed cell.
+    Append-only, fsync'ed audit: ``run <config> engine=... todo=... pid=... t=<unix time>`` per run
+    and ``computed <key> <id> t=<unix time>`` per computed cell.
+``claims/<key>.claim``
+    While a sweep computes a cell: its claim (``pid host start``, :mod:`seekopt.evaluate.claims`),
+    so a second sweep into the same folder computes other cells and waits for this one.
 ``results.csv``
     The tidy table assembled from ``cells/`` (one row per cell x profile kind).
 ``profiles/``, ``figures/``
-    Optimal profiles as CSV; the sweep figures (:mod:`seekopt.app.report`).
+    Optimal profiles as CSV; the sweep figures (:mod:`seekopt.evaluate.sweep_figures`).
 
 Re-running a sweep into the same folder resumes it: saved cells are read, not
-recomputed.  The grid may change between runs (cells are keyed by TPI and
-length); everything else (plant, controller, current limit, settle band,
-designer, kinds) must match, or :class:`SweepError` is raised; cells computed by
-other code (:func:`code_hash`) are reused with a warning.
+recomputed; two sweeps running into one folder share the cells (claims).  The grid may change
+between runs (cells are keyed by TPI and length); everything else (plant, controller, current
+limit, settle band, designer, kinds) must match, or :class:`SweepError` is raised; cells
+computed by other code (:func:`code_hash`) are reused with a warning.  Before anything is
+computed, :func:`check_inputs` refuses a designer that cannot be made and a controller that
+does not close a stable loop with the plant at every TPI (or runs at another sample rate).
 
 Engines (:mod:`seekopt.evaluate.engines`): ``serial`` (in process), ``process`` (default; a local
-:class:`concurrent.futures.ProcessPoolExecutor`; Ipopt/MUMPS is not thread-safe,
-so processes, and a lock serialises cells within any one process), and Dask
-(``local`` starts a loopback :class:`dask.distributed.LocalCluster`, or a
-scheduler address ``tcp://HOST:PORT``).  Each worker process keeps the designer
-it built for a TPI and reuses it.  The numbers do not depend on the engine or
-the order; only the timing columns (:data:`TIMING_COLUMNS`) do.
+:class:`concurrent.futures.ProcessPoolExecutor` whose workers have one BLAS thread and die with
+the sweep; Ipopt/MUMPS is not thread-safe, so processes), and Dask (``local`` starts a loopback
+:class:`dask.distributed.LocalCluster`, or a scheduler address ``tcp://HOST:PORT``).  Every
+worker holds one :class:`CellRunner` with one warm designer, built once per (plant, controller,
+TPI) and reused for the following cells of that TPI; there is no module-level cache.  The
+numbers do not depend on the engine or the order; only the timing columns
+(:data:`TIMING_COLUMNS`) do.
 """
 from __future__ import annotations
 
@@ -51,7 +57,6 @@ import sys
 import threading
 import time
 import uuid
-from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -62,11 +67,12 @@ from identification.model.plant import TRACK_PITCH_PER_TPI_NM, ModalPlant
 
 from seekopt.evaluate.bench import baseline_profile as _bench_baseline, tuned_baseline
 from seekopt.drive.controller import Controller
-from seekopt.evaluate.engines import EngineError, iter_dask, iter_pool, iter_serial, make_pool, one_line
+from seekopt.evaluate.engines import EngineError, make_engine, make_pool, one_line, worker_held
 from seekopt.design.profiles import t_bang_bang
 
 __all__ = ["SweepError", "SweepConfig", "SweepSummary", "parse_tpi", "parse_tracks", "cell_key",
-           "compute_cell", "run_sweep", "evaluate", "make_pool", "assemble", "load_cells",
+           "compute_cell", "run_sweep", "evaluate", "make_pool", "assemble", "load_cells", "CellRunner",
+           "run_cell_in_worker", "check_inputs",
            "BaselineDesigner", "baseline_profile", "controller_at_tpi", "write_atomic",
            "code_hash", "KINDS", "ALL_KINDS", "TUNE_FACTORS", "TIMING_COLUMNS", "COLUMNS"]
 
@@ -177,12 +183,19 @@ class SweepConfig:
     settle : float
         Settle band [track] (the same in tracks at every TPI).
     designer : str
-        ``"ocp"`` (:class:`seekopt.design.ocp.SeekDesigner`, nominal), ``"ocp-robust"`` (the same with the
-        default :class:`seekopt.design.ocp.RobustSpec`: what ``seekopt design`` does), ``"baseline"``
+        ``"ocp-robust"`` (default: :class:`seekopt.design.ocp.SeekDesigner` with the default
+        :class:`seekopt.design.ocp.RobustSpec`, what ``seekopt design`` and ``seekopt sweep`` do),
+        ``"ocp"`` (the same, nominal), ``"baseline"``
         (:class:`BaselineDesigner`, for testing the machinery) or ``"module:attr"``,
         a factory ``f(plant, controller, imax, settle) -> obj`` with ``obj.design(tracks)``.
     kinds : tuple of str
         Subset of :data:`ALL_KINDS` (default :data:`KINDS`).
+    family : list of ModalPlant
+        Further members of the drive's plant family (``plant`` is the nominal one): the optimal
+        designs (``ocp``, ``ocp-robust``) hold every member; the table evaluates on ``plant``.
+    drift : str or None
+        Drift of the ``ocp-robust`` designer in physical terms (:meth:`seekopt.design.family.Drift.from_string`;
+        None: from the data).
     """
 
     plant: ModalPlant
@@ -191,10 +204,12 @@ class SweepConfig:
     tracks: list
     imax: float
     settle: float = 0.1
-    designer: str = "ocp"
+    designer: str = "ocp-robust"
     kinds: tuple = KINDS
     horizon_s: float | None = None
     scale_controller: bool = True
+    family: list = field(default_factory=list)
+    drift: str | None = None
 
     def __post_init__(self):
         if self.plant.track_pitch_nm is None:
@@ -205,13 +220,27 @@ class SweepConfig:
         if bad:
             raise SweepError(f"unknown profile kind {bad[0]!r} (known: {', '.join(ALL_KINDS)})")
         self.tpis, self.tracks = parse_tpi(",".join(map(repr, self.tpis))), parse_tracks(self.tracks)
+        self.family = list(self.family or [])
+        if any(p.track_pitch_nm is None for p in self.family):
+            raise SweepError("a family member has no track_pitch_nm; a TPI sweep needs the physical gain")
+        if self.drift:
+            from seekopt.design.family import Drift, DriftError
+            try:
+                Drift.from_string(self.drift).check_modes(self.plant)
+            except DriftError as exc:
+                raise SweepError(f"--drift: {exc}") from None
 
     def identity(self) -> dict:
         """Everything but the grid: what saved cells must agree on to be reused."""
-        return {"plant": self.plant.to_dict(), "controller": self.controller.to_dict(),
-                "imax": float(self.imax), "settle": float(self.settle), "designer": self.designer,
-                "kinds": list(self.kinds), "horizon_s": self.horizon_s,
-                "scale_controller": bool(self.scale_controller)}
+        d = {"plant": self.plant.to_dict(), "controller": self.controller.to_dict(),
+             "imax": float(self.imax), "settle": float(self.settle), "designer": self.designer,
+             "kinds": list(self.kinds), "horizon_s": self.horizon_s,
+             "scale_controller": bool(self.scale_controller)}
+        if self.family:              # only when used: sweeps of one plant keep their hash
+            d["family"] = [p.to_dict() for p in self.family]
+        if self.drift:
+            d["drift"] = self.drift
+        return d
 
     def hash(self) -> str:
         import hashlib
@@ -223,6 +252,7 @@ class SweepConfig:
         d = self.identity()
         d.update(tpis=list(self.tpis), tracks=list(self.tracks), config_hash=self.hash(),
                  plant_hash=self.plant.hash(), controller_hash=self.controller.hash(),
+                 **({"family_hashes": [p.hash() for p in self.family]} if self.family else {}),
                  tool_version=__version__, code_hash=code_hash(), schema=1)
         return d
 
@@ -230,7 +260,8 @@ class SweepConfig:
     def from_dict(cls, d: dict) -> "SweepConfig":
         return cls(ModalPlant.from_dict(d["plant"]), Controller.from_json(d["controller"]),
                    d["tpis"], d["tracks"], d["imax"], d["settle"], d["designer"],
-                   tuple(d["kinds"]), d.get("horizon_s"), d.get("scale_controller", True))
+                   tuple(d["kinds"]), d.get("horizon_s"), d.get("scale_controller", True),
+                   [ModalPlant.from_dict(p) for p in d.get("family", [])], d.get("drift"))
 
     def cells(self) -> list[tuple[float, float]]:
         """Cells in submission order: by TPI (designer reuse), longest seeks first (balance)."""
@@ -280,12 +311,17 @@ class BaselineDesigner:
                                objective="shortest_bang_bang", solve_time_s=time.perf_counter() - t0)
 
 
-def _designer_factory(spec: str):
+def _designer_factory(spec: str, family=None, drift: str | None = None):
+    """``f(plant, controller, imax, settle) -> designer``; the built-in ``ocp`` (nominal) and ``ocp-robust``
+    (the default :class:`seekopt.design.family.Drift`, or ``drift``) designs also hold the ``family``
+    members (already at the cell's TPI)."""
     if spec in ("ocp", "ocp-robust"):
-        from seekopt.design.ocp import RobustSpec, SeekDesigner
-        robust = RobustSpec() if spec == "ocp-robust" else None
-        return lambda plant, controller, imax, settle: SeekDesigner(plant, controller, imax, settle=settle,
-                                                                    robust=robust)
+        from seekopt.design.designer import SeekDesigner
+        from seekopt.design.family import Drift
+        from seekopt.design.problem import SeekProblem
+        robust = Drift.from_string(drift) if spec == "ocp-robust" else None
+        return lambda plant, controller, imax, settle: SeekDesigner(SeekProblem(
+            plant, controller, imax, settle, robust=robust, family=list(family or [])))
     if spec == "baseline":
         return BaselineDesigner
     mod, _, attr = spec.partition(":")
@@ -301,26 +337,6 @@ def baseline_profile(plant: ModalPlant, fs: float, kind: str, tracks: float, ima
 
 
 # ------------------------------------------------------------------ one cell (runs in workers)
-_LOCK = threading.Lock()          # Ipopt/MUMPS is not thread-safe: one cell at a time per process
-_OBJECTS: dict = {}                # per process: plants and controllers per (config, TPI)
-_DESIGNERS: OrderedDict = OrderedDict()   # per process: the designer of the last few TPIs
-_N_DESIGNERS = 3
-
-
-def _cached(key, make):
-    if key[0] != "designer":
-        if key not in _OBJECTS:
-            _OBJECTS[key] = make()
-        return _OBJECTS[key]
-    if key in _DESIGNERS:
-        _DESIGNERS.move_to_end(key)
-        return _DESIGNERS[key]
-    value = _DESIGNERS[key] = make()
-    while len(_DESIGNERS) > _N_DESIGNERS:
-        _DESIGNERS.popitem(last=False)
-    return value
-
-
 def evaluate(plant, controller, profile, settle, horizon_s, k0) -> dict:
     """:func:`seekopt.design.metrics.evaluate_profile` as a dict (the one simulator)."""
     from seekopt.design.metrics import evaluate_profile
@@ -328,34 +344,62 @@ def evaluate(plant, controller, profile, settle, horizon_s, k0) -> dict:
                             k0_for_tbb=k0).to_dict()
 
 
-def compute_cell(payload: dict) -> dict:
-    """Design and evaluate one cell; never raises for design or evaluation failures.
+class CellRunner:
+    """Computes cells (:meth:`__call__`) and holds what it built for them.
 
-    Parameters
+    It keeps the plant, the controller and ONE warm designer for the current
+    ``(configuration, TPI)``: built on the first cell of that TPI, reused for every following
+    cell of it (cells are submitted TPI by TPI), replaced when the TPI changes.  The serial engine
+    holds one runner in the driving process; each pool or Dask worker holds its own
+    (:func:`run_cell_in_worker`, :func:`seekopt.evaluate.engines.worker_held`).  A lock makes one
+    runner compute one cell at a time (Ipopt/MUMPS is not thread-safe).
+
+    Attributes
     ----------
-    payload : dict
-        ``{"config": SweepConfig.to_dict(), "tpi": float, "tracks": float}``.
-
-    Returns
-    -------
-    dict
-        ``key, tpi, tracks, config_hash, computation_id, pid, rows`` (one per kind)
-        and ``optimal_profile`` (a :meth:`Profile.to_dict` or None).
+    designers_built : int
+        Designers built so far (one per TPI visited; for reuse tests and studies).
     """
-    with _LOCK:
+
+    def __init__(self):
+        self._lock = threading.Lock()
+        self._key = None
+        self._held: dict = {}
+        self.designers_built = 0
+
+    def _objects(self, cfgd: dict, tpi: float) -> dict:
+        key = (cfgd["config_hash"], tpi)
+        if key != self._key:
+            plant0 = ModalPlant.from_dict(cfgd["plant"])
+            ctrl = Controller.from_json(cfgd["controller"])
+            scaled = cfgd.get("scale_controller", True)
+            self._held = {"plant0": plant0, "plant": plant0.at_tpi(tpi),
+                          "ctrl": controller_at_tpi(ctrl, plant0, tpi) if scaled else ctrl,
+                          "gain": controller_factor(plant0, tpi) if scaled else 1.0, "designer": None,
+                          "family": [ModalPlant.from_dict(m).at_tpi(tpi) for m in cfgd.get("family", [])]}
+            self._key = key
+        return self._held
+
+    def designer(self, cfgd: dict, tpi: float):
+        """The warm designer of ``(configuration, tpi)`` (built on first use)."""
+        held = self._objects(cfgd, tpi)
+        if held["designer"] is None:
+            held["designer"] = _designer_factory(cfgd["designer"], held["family"], cfgd.get("drift"))(
+                held["plant"], held["ctrl"], float(cfgd["imax"]), float(cfgd["settle"]))
+            self.designers_built += 1
+        return held["designer"]
+
+    def __call__(self, payload: dict) -> dict:
+        with self._lock:
+            return self._compute(payload)
+
+    def _compute(self, payload: dict) -> dict:
         cfgd, tpi, tracks = payload["config"], float(payload["tpi"]), float(payload["tracks"])
         h = cfgd["config_hash"]
-        base = _cached(("cfg", h), lambda: (ModalPlant.from_dict(cfgd["plant"]),
-                                            Controller.from_json(cfgd["controller"])))
-        plant0, ctrl = base
-        plant = _cached(("plant", h, tpi), lambda: plant0.at_tpi(tpi))
-        if cfgd.get("scale_controller", True):
-            ctrl = _cached(("ctrl", h, tpi), lambda: controller_at_tpi(base[1], plant0, tpi))
+        held = self._objects(cfgd, tpi)
+        plant, ctrl = held["plant"], held["ctrl"]
         fs, imax, settle = ctrl.sample_rate_hz, float(cfgd["imax"]), float(cfgd["settle"])
         common = {"tpi": tpi, "track_pitch_nm": plant.track_pitch_nm, "k0_track": plant.k0,
-                  "controller_gain": (controller_factor(plant0, tpi)
-                                      if cfgd.get("scale_controller", True) else 1.0),
-                  "tracks": tracks, "designer": cfgd["designer"],
+                  "controller_gain": held["gain"], "tracks": tracks, "designer": cfgd["designer"],
                   "t_bb_s": t_bang_bang(tracks, plant.k0, imax)}
         rows, opt, tuned = [], None, {}
         for kind in cfgd["kinds"]:
@@ -364,9 +408,7 @@ def compute_cell(payload: dict) -> dict:
             row.update({m: None for m in _METRICS})
             try:
                 if kind == "optimal":
-                    designer = _cached(("designer", h, tpi), lambda: _designer_factory(cfgd["designer"])(
-                        plant, ctrl, imax, settle))
-                    res = designer.design(tracks)
+                    res = self.designer(cfgd, tpi).design(tracks)
                     prof = res.profile
                     row.update(design_status=str(res.status), solver=str(res.solver),
                                objective=str(res.objective), solve_time_s=_f(res.solve_time_s))
@@ -398,6 +440,29 @@ def compute_cell(payload: dict) -> dict:
                 "code_hash": cfgd.get("code_hash"), "computation_id": uuid.uuid4().hex, "pid": os.getpid(),
                 "rows": rows, "optimal_profile": None if opt is None else opt.to_dict(),
                 "tuned_profiles": {k: p.to_dict() for k, p in tuned.items()}}
+
+
+def compute_cell(payload: dict) -> dict:
+    """Design and evaluate one cell with a fresh :class:`CellRunner`; never raises for design or
+    evaluation failures (they are rows with ``status`` ``error`` / ``infeasible``).
+
+    Parameters
+    ----------
+    payload : dict
+        ``{"config": SweepConfig.to_dict(), "tpi": float, "tracks": float}``.
+
+    Returns
+    -------
+    dict
+        ``key, tpi, tracks, config_hash, computation_id, pid, rows`` (one per kind)
+        and ``optimal_profile`` (a :meth:`Profile.to_dict` or None).
+    """
+    return CellRunner()(payload)
+
+
+def run_cell_in_worker(payload: dict) -> dict:
+    """:func:`compute_cell` with the :class:`CellRunner` this worker holds (warm designer)."""
+    return worker_held(CellRunner)(payload)
 
 
 def _f(x):
@@ -453,30 +518,62 @@ class SweepSummary:
     """What a :func:`run_sweep` call did."""
 
     total: int
-    skipped: int
-    computed: int
-    failed_cells: list = field(default_factory=list)    # saved, with an error row
+    skipped: int                                         # saved before this run
+    computed: int                                        # computed by this run
+    failed_cells: list = field(default_factory=list)    # saved, with an error or infeasible row
     engine_errors: dict = field(default_factory=dict)   # not saved (retried on the next run)
     wall_s: float = 0.0
     engine: str = ""
     table: Path | None = None
     figures: list = field(default_factory=list)
+    by_others: int = 0                                   # computed meanwhile by another sweep (claims)
 
     @property
     def cells_per_s(self) -> float:
         return self.computed / self.wall_s if self.wall_s > 0 else float("nan")
 
+    @property
+    def ok(self) -> bool:
+        """Every cell of the grid saved and without a failed row."""
+        return not self.failed_cells and not self.engine_errors
 
-def _engine_errors_as_sweep_errors(it):
+
+def check_inputs(cfg: SweepConfig) -> None:
+    """Everything a sweep can know is wrong before it computes: the designer can be made, and the
+    controller closes a stable loop with the plant at every TPI (:func:`seekopt.drive.loopcheck.check_loop`:
+    same sample rate, closed-loop poles inside the unit circle).  Raises :class:`SweepError`."""
+    from seekopt.drive.loopcheck import LoopError, check_loop
     try:
-        yield from it
-    except EngineError as exc:
-        raise SweepError(str(exc)) from None
+        _designer_factory(cfg.designer)
+    except SweepError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - module:attr that cannot be imported
+        raise SweepError(f"designer {cfg.designer!r}: {one_line(exc)}") from None
+    for tpi in cfg.tpis:
+        plant = cfg.plant.at_tpi(tpi)
+        ctrl = controller_at_tpi(cfg.controller, cfg.plant, tpi) if cfg.scale_controller else cfg.controller
+        try:
+            check_loop(plant, ctrl, "the plant", f"controller {cfg.controller.name!r}")
+        except LoopError as exc:
+            raise SweepError(f"{exc} (at {tpi:g} TPI)") from None
+
+
+def _load_cell(outdir: Path, key: str, config_hash: str) -> dict | None:
+    try:
+        c = json.loads((outdir / "cells" / f"{key}.json").read_text())
+    except (OSError, ValueError):
+        return None
+    return c if c.get("config_hash") == config_hash else None
 
 
 def run_sweep(cfg: SweepConfig, outdir, *, engine: str = "process", workers: int | None = None,
               progress: bool = True, client=None, executor=None, figures: bool = True) -> SweepSummary:
-    """Run (or resume) a sweep into ``outdir`` and assemble its table and figures.
+    """Run (or resume, or join) a sweep into ``outdir`` and assemble its table and figures.
+
+    Cells are submitted lazily, TPI by TPI, at most as many as the engine has workers, each
+    claimed just before (:class:`seekopt.evaluate.claims.Claims`): a second sweep of the same
+    configuration into the same folder computes the cells the first has not claimed and waits for
+    the others, so the two share the work; a killed sweep's claims are taken over.
 
     Parameters
     ----------
@@ -488,68 +585,138 @@ def run_sweep(cfg: SweepConfig, outdir, *, engine: str = "process", workers: int
         127.0.0.1) or a Dask scheduler address ``"tcp://HOST:PORT"``.
     workers : int, optional
         Processes for ``process``/``local`` (default: CPU count, at most the cells to do).
+    progress : bool
+        A tqdm bar on stderr.
     client : dask.distributed.Client, optional
         Use this Dask client (``engine`` is then ignored).
     executor : concurrent.futures.Executor, optional
         Use this (process) pool and leave it running (see :func:`make_pool`); its workers keep
         their designers between sweeps.
+
+    Raises
+    ------
+    SweepError
+        Bad input found before anything is computed (:func:`check_inputs`), a results folder of
+        another configuration, an engine that cannot start.
     """
     from tqdm.auto import tqdm
+    from seekopt.evaluate.claims import Claims
     outdir = Path(outdir)
-    try:
-        _designer_factory(cfg.designer)        # a bad designer is an input error, before anything is written
-    except SweepError:
-        raise
-    except Exception as exc:  # noqa: BLE001 - module:attr that cannot be imported
-        raise SweepError(f"designer {cfg.designer!r}: {one_line(exc)}") from None
+    if client is None and executor is None and engine not in ("serial", "process", "local") \
+            and not engine.startswith(("tcp://", "tls://")):
+        raise SweepError(f"engine {engine!r}: expected serial, process, local or tcp://HOST:PORT")
+    check_inputs(cfg)
     saved = _prepare(cfg, outdir)
+    h = cfg.hash()
     todo = [(t, k) for t, k in cfg.cells() if cell_key(t, k) not in saved]
     total = len(cfg.cells())
     cfgd = cfg.to_dict()
-    payloads = [{"config": cfgd, "tpi": t, "tracks": k} for t, k in todo]
     workers = workers or os.cpu_count() or 1
     if client is not None:
         engine = "dask-client"
     elif executor is not None:
         engine = "process"
-    elif engine not in ("serial", "process", "local") and not engine.startswith(("tcp://", "tls://")):
-        raise SweepError(f"engine {engine!r}: expected serial, process, local or tcp://HOST:PORT")
-    if engine == "process" and executor is None and (workers <= 1 or len(payloads) <= 1):
+    if engine == "process" and executor is None and (workers <= 1 or len(todo) <= 1):
         engine = "serial"
     summary = SweepSummary(total=total, skipped=total - len(todo), computed=0, engine=engine)
     t0 = time.perf_counter()
-    if payloads:
-        _journal(outdir, f"run {cfg.hash()} engine={engine} todo={len(todo)} saved={len(saved)}")
-        it = (iter_serial(compute_cell, payloads) if engine == "serial" else
-              iter_pool(compute_cell, payloads, min(workers, len(payloads)), executor) if engine == "process" else
-              iter_dask(compute_cell, payloads, engine, workers, client,
-                        key=lambda p: f"cell-{p['config']['config_hash']}-{cell_key(p['tpi'], p['tracks'])}"))
+    if todo:
+        _journal(outdir, f"run {h} engine={engine} todo={len(todo)} saved={len(saved)} pid={os.getpid()}")
+        claims = Claims(outdir / "claims")
+        fn = CellRunner() if engine == "serial" else run_cell_in_worker
+        try:
+            eng = make_engine(engine, fn, min(workers, len(todo)), client=client, executor=executor,
+                              key=lambda p: f"cell-{h}-{cell_key(p['tpi'], p['tracks'])}")
+        except EngineError as exc:
+            raise SweepError(str(exc)) from None
         with tqdm(total=total, initial=summary.skipped, unit="cell", desc="sweep", file=sys.stderr,
                   disable=not progress, dynamic_ncols=True, smoothing=0.1) as bar:
-            for p, cell, exc in _engine_errors_as_sweep_errors(it):
-                key = cell_key(p["tpi"], p["tracks"])
-                if exc is not None:
-                    summary.engine_errors[key] = one_line(exc)
-                else:
-                    write_atomic(outdir / "cells" / f"{key}.json", json.dumps(cell))
-                    _journal(outdir, f"computed {key} {cell['computation_id']}")
-                    summary.computed += 1
-                    saved[key] = cell
-                bar.update(1)
-                bar.set_postfix_str(f"{key} {'engine error' if exc else 'ok'}", refresh=False)
+            try:
+                with eng:
+                    _drive(eng, cfgd, todo, outdir, claims, saved, summary, bar)
+            finally:
+                claims.release_all()
     summary.wall_s = time.perf_counter() - t0
     summary.failed_cells = sorted(k for k, c in saved.items()
                                   if any(r["status"] != "ok" for r in c["rows"]))
     summary.table = assemble(outdir, cfg)
     if figures:
         import pandas as pd
-        from seekopt.app.report import plot_sweep
+        from seekopt.evaluate.sweep_figures import plot_sweep
         try:
             summary.figures = plot_sweep(pd.read_csv(summary.table), outdir / "figures")
         except Exception as exc:  # noqa: BLE001 - the table is saved; say so, do not lose the run
             print(f"sweep: figures failed ({one_line(exc)}); the table {summary.table} is complete",
                   file=sys.stderr)
     return summary
+
+
+def _drive(eng, cfgd, todo, outdir, claims, saved, summary, bar, poll_s: float = 0.5) -> None:
+    """The driving loop of :func:`run_sweep`: claim and submit up to ``eng.capacity`` cells, save
+    each result as it arrives, wait for cells claimed by another live sweep (take them over if it
+    dies)."""
+    from collections import deque
+    h = cfgd["config_hash"]
+    pending, inflight, elsewhere = deque(todo), {}, {}
+
+    def done(key, cell, by=""):
+        saved[key] = cell
+        bar.update(1)
+        bar.set_postfix_str(f"{key} {by or 'ok'}", refresh=False)
+
+    last_scan = 0.0
+    while pending or inflight or elsewhere:
+        while pending and len(inflight) < eng.capacity:
+            tpi, k = pending.popleft()
+            key = cell_key(tpi, k)
+            cell = _load_cell(outdir, key, h)
+            if cell is None:
+                holder = claims.claim(key)
+                if holder is not None:
+                    elsewhere[key] = (tpi, k, holder)
+                    continue
+                cell = _load_cell(outdir, key, h)      # saved between the look and the claim?
+                if cell is None:
+                    try:
+                        inflight[eng.submit({"config": cfgd, "tpi": tpi, "tracks": k})] = key
+                    except Exception as exc:  # noqa: BLE001 - e.g. a broken pool: this cell is not computed
+                        claims.release(key)
+                        summary.engine_errors[key] = one_line(exc)
+                        bar.update(1)
+                    continue
+                claims.release(key)
+            summary.by_others += 1
+            done(key, cell, "by another sweep")
+        if inflight:
+            for handle, cell, exc in eng.wait(list(inflight), timeout=poll_s if elsewhere else None):
+                key = inflight.pop(handle)
+                if exc is not None:
+                    summary.engine_errors[key] = one_line(exc)
+                    bar.update(1)
+                    bar.set_postfix_str(f"{key} engine error", refresh=False)
+                else:
+                    write_atomic(outdir / "cells" / f"{key}.json", json.dumps(cell))
+                    _journal(outdir, f"computed {key} {cell['computation_id']}")
+                    summary.computed += 1
+                    done(key, cell)
+                claims.release(key)
+        elif elsewhere:
+            time.sleep(poll_s)
+        if elsewhere and time.perf_counter() - last_scan >= poll_s:
+            last_scan = time.perf_counter()
+            for key, (tpi, k, holder) in list(elsewhere.items()):
+                cell = _load_cell(outdir, key, h)
+                if cell is not None:
+                    del elsewhere[key]
+                    summary.by_others += 1
+                    done(key, cell, "by another sweep")
+                elif not claims.holder_alive(key):
+                    del elsewhere[key]
+                    pending.appendleft((tpi, k))       # its sweep died: take the cell over
+            if elsewhere and not inflight and not pending:
+                holders = sorted({v[2].split()[0] for v in elsewhere.values()})
+                bar.set_postfix_str(f"waiting for {len(elsewhere)} cells claimed by pid {', '.join(holders)}",
+                                    refresh=True)
 
 
 # ------------------------------------------------------------------ assembly

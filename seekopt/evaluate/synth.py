@@ -34,7 +34,11 @@ from seekopt.drive.presets import default_truth_plant, nss_disturbances
 from seekopt.design.profiles import reference_from_model, shortest_baseline, sine_profile, windowed_sine_profile
 from seekopt.drive.simulator import Disturbances, simulate_2dof
 
-__all__ = ["SynthConfig", "synthesize", "schedule_seeks"]
+__all__ = ["SynthError", "SynthConfig", "synthesize", "schedule_seeks"]
+
+
+class SynthError(ValueError):
+    """A synthetic-drive setting that cannot work (one-line message naming the field)."""
 
 
 @dataclass
@@ -56,6 +60,25 @@ class SynthConfig:
     rro_scale: float = 1.0
     effects: list = field(default_factory=list)   # undeclared effects added to the truth
     log_substeps: bool = True     # a multirate drive also logs current_sub1_a .. current_subL_a
+
+    def __post_init__(self):
+        def positive(name, v):
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise SynthError(f"{name} must be a positive number (got {v!r})")
+        if isinstance(self.n_seeks, bool) or not isinstance(self.n_seeks, int) or self.n_seeks < 1:
+            raise SynthError(f"n_seeks must be an integer >= 1 (got {self.n_seeks!r})")
+        positive("imax_a [A]", self.imax_a)
+        positive("min_tracks [track]", self.min_tracks)
+        positive("min_seek_s [s]", self.min_seek_s)
+        if not self.max_tracks >= self.min_tracks:
+            raise SynthError(f"max_tracks ({self.max_tracks!r}) must be >= min_tracks ({self.min_tracks!r})")
+        if not (len(self.dwell_s) == 2 and 0 < self.dwell_s[0] <= self.dwell_s[1]):
+            raise SynthError(f"dwell_s must be (low, high) seconds with 0 < low <= high (got {self.dwell_s!r})")
+        if not (math.isfinite(self.rro_scale) and self.rro_scale >= 0):
+            raise SynthError(f"rro_scale must be >= 0 (got {self.rro_scale!r})")
+        bad = [p for p in self.profiles if p not in _BASELINES]
+        if bad or not self.profiles:
+            raise SynthError(f"profiles must be among {', '.join(_BASELINES)} (got {list(self.profiles)!r})")
 
     def to_dict(self) -> dict:
         d = dict(self.__dict__)
@@ -108,14 +131,19 @@ def synthesize(cfg: SynthConfig | None = None, plant: ModalPlant | None = None,
                firmware_k0: float | None = None) -> tuple[SeekLog, ModalPlant]:
     """Run the synthetic drive; returns ``(log, truth_plant)``.
 
+    Raises :class:`seekopt.drive.loopcheck.LoopError` before simulating if the controller runs at
+    another rate than the plant's ``sample_rate_hz`` or does not close a stable loop with it.
+
     ``firmware_k0`` is the rigid-body gain the drive's firmware uses for its
     profiles and reference model (default: the truth's ``k0``).
     """
+    from seekopt.drive.loopcheck import check_loop
     cfg = cfg or SynthConfig()
     plant = plant or default_truth_plant()
     effects = [e if isinstance(e, Effect) else effect_from_dict(e) for e in cfg.effects]
     truth = plant.copy(effects=list(plant.effects) + effects)
     controller = controller or Controller.nss()
+    check_loop(truth, controller)       # LoopError: another sample rate, or an unstable loop
     fs = float(controller.sample_rate_hz)
     if disturbances is None:
         disturbances = (nss_disturbances(cfg.seed, rro=cfg.rro, scale_rro=cfg.rro_scale) if cfg.noise

@@ -1,0 +1,97 @@
+"""Friction candidate of closing the loop: Coulomb + viscous, with sticking.
+
+Fitted in two stages: a fast model on the measured signals (a head at rest holds while the
+applied force is below the Coulomb level), then the bias and the Coulomb level refined by
+``DiscretePlant`` simulation -- when the head sticks only the model's own state reproduces
+the friction force, and the rigid body turns a 1e-6 A bias error into a visible position
+error.  Units: tracks, A, s.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import minimize, minimize_scalar
+
+from identification.loop.fit_engine import Data, Engine, Fit, linear_fit, rebase, refit_base
+from identification.loop.residual import simulate
+from identification.loop.stats import lstsq
+from identification.model.effects import Friction
+from identification.model.plant import ModalPlant
+
+__all__ = ["fit_friction", "sim_refine", "polish"]
+
+
+def _friction_force(c, vis, bias, u_del, v, moving):
+    """Fast friction model from measured signals [A]: ``-c sign(v) - vis v`` while moving,
+    and while stuck the force that holds the head, ``-clip(u + bias, -c, c)``."""
+    return np.where(moving, -c * np.sign(v) - vis * v, -np.clip(u_del + bias, -c, c))
+
+
+def fit_friction(plant, data, settings):
+    g = data.grid
+    v = data.on_grid(g.velocity)                                   # (n, L)
+    ap, (c, vis), _, w = linear_fit(plant, data, [data.on_grid(-np.tanh(g.velocity / data.v_scale)), -v],
+                                    bounds=([0, 0], [np.inf, np.inf]))
+    if w < settings.min_wald_chi2:
+        return None
+    # 1. fast model with sticking (a head at rest stays while |u + bias| < c), base jointly
+    eng = Engine(plant, data)
+    m = eng.lm.m                                                   # delay in sub-steps
+    u = eng.cmd.reshape(-1)
+    u_del = np.r_[np.full(m + 1, u[0]), u[:len(u) - m - 1]].reshape(eng.cmd.shape)
+    moving = np.abs(v) > 2 * data.v_scale
+    base = eng.base_cols()
+    B = eng.project(*[base[i] for i in range(len(base)) if i != 1])
+    c0, v0 = max(c / (1 + ap.k), 1e-6), max(vis / (1 + ap.k), 1e-12)
+
+    def fast(x):
+        cc, bb, vv = abs(c0 * (1 + x[0])), plant.bias_a + c0 * x[1], abs(v0 * (1 + x[2]))
+        col = eng.resp(force=_friction_force(cc, vv, bb, u_del, v, moving) + bb - plant.bias_a)
+        th, sse = lstsq(eng.project(eng.target() - col)[:, 0], B)
+        return sse, th, (cc, bb, vv)
+    x = minimize(lambda x: fast(x)[0], np.zeros(3), method="Nelder-Mead",
+                 options={"maxiter": 150, "xatol": 2e-3, "initial_simplex": np.vstack([np.zeros(3), 0.2 * np.eye(3)])}).x
+    _, th, (cc, bb, vv) = fast(x)
+    full = np.r_[th[0], 0.0, th[1:]]
+    p = rebase(plant.copy(bias_a=bb), full, eng.setters, effects=plant.effects + [Friction(float(cc), float(vv))])
+    # 2. bias and Coulomb level by simulation (the rigid body integrates 1e-6 A errors visibly)
+    p = sim_refine(p, data.subset(settings.search_samples))
+    p = polish(p, data, 1, bias=False)
+    return Fit("friction", p, 2, p.effects[-1].params,
+               "fast sticking model, then bias and Coulomb level refined by DiscretePlant simulation")
+
+
+def sim_refine(plant: ModalPlant, data: Data, rounds=("bias", "coulomb", "bias")) -> ModalPlant:
+    """Coordinate refinement (Brent, by ``DiscretePlant`` simulation) of ``bias_a`` and of the
+    last effect's (friction) Coulomb level."""
+    for what in rounds:
+        fr = plant.effects[-1]
+        c = fr.coulomb_a
+        if what == "bias":
+            def make(x, p=plant):
+                return p.copy(bias_a=p.bias_a + x)
+            lo, hi = -0.05 * c, 0.05 * c
+        else:
+            def make(x, p=plant, fr=fr):
+                return p.copy(effects=p.effects[:-1] + [Friction(max(fr.coulomb_a + x, 0.0), fr.viscous_a_per_tps)])
+            lo, hi = -0.15 * c, 0.15 * c
+
+        def cost(x):
+            e = simulate(make(x), data.log, data.windows, passes=1, continuous=False, grid=data.grid,
+                         cache=data.cache).e
+            return float(e @ e)
+        r = minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 0.002 * c, "maxiter": 14})
+        if r.fun < cost(0.0):
+            plant = make(r.x)
+    return plant
+
+
+def polish(plant: ModalPlant, data: Data, iters: int = 2, bias: bool = True) -> ModalPlant:
+    """Base re-fit with the command and force sequences of the plant's own simulation
+    (for effects the measured signals do not reproduce, e.g. friction sticking);
+    ``bias=False`` keeps ``bias_a``."""
+    for _ in range(iters):
+        res = simulate(plant, data.log, data.windows, continuous=False, record=True, grid=data.grid,
+                       cache=data.cache)
+        new = refit_base(plant, data.freeze(plant, res), iters=1)
+        plant = new if bias else new.copy(bias_a=plant.bias_a)
+    return plant

@@ -1,0 +1,138 @@
+"""Statistics of closing the loop: least squares, clustered covariance, Wald test, BIC.
+
+The residual of an output-error simulation is coloured (force noise integrated by the rigid
+body, flutter, run-out) and correlated within a seek, so
+
+* significance uses a covariance robust to any correlation within a seek (the clusters are
+  the seeks: :func:`cluster_cov`, :func:`wald`);
+* the information criterion counts an *effective* number of independent samples
+  (:func:`effective_n`, :func:`bic`).
+
+``windows`` arguments are :class:`identification.loop.windows.Windows`; residuals are
+concatenated over their samples.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.optimize import lsq_linear
+
+__all__ = ["lstsq", "smooth_lstsq", "cluster_cov", "wald", "effective_n", "bic", "segments"]
+
+
+def lstsq(r: np.ndarray, Z: np.ndarray, bounds=None):
+    """Least squares ``r ~ Z theta`` (columns scaled; optionally bounded): ``(theta, sse)``."""
+    if Z.shape[1] == 0:
+        return np.zeros(0), float(r @ r)
+    s = np.linalg.norm(Z, axis=0); s[s == 0] = 1.0
+    if bounds is None:
+        th = np.linalg.lstsq(Z / s, r, rcond=1e-9)[0]
+    else:
+        th = lsq_linear(Z / s, r, bounds=(np.asarray(bounds[0]) * s, np.asarray(bounds[1]) * s)).x
+    th = th / s
+    e = r - Z @ th
+    return th, float(e @ e)
+
+
+def segments(windows, e: np.ndarray) -> list:
+    """Split concatenated window samples into per-window arrays."""
+    cuts = np.cumsum([b - a for a, b in windows.bounds])[:-1]
+    return np.split(e, cuts)
+
+
+def cluster_cov(Z: np.ndarray, e: np.ndarray, windows) -> np.ndarray:
+    """Covariance of LS coefficients robust to any correlation within a seek (clusters)."""
+    Zi = np.linalg.pinv(Z.T @ Z)
+    scores = {}
+    i = 0
+    for (a, b), g in zip(windows.bounds, windows.groups):
+        scores[g] = scores.get(g, 0.0) + Z[i:i + b - a].T @ e[i:i + b - a]
+        i += b - a
+    meat = sum(np.outer(v, v) for v in scores.values())
+    m = len(scores)
+    return Zi @ meat @ Zi * m / max(m - 1, 1)
+
+
+def wald(th: np.ndarray, cov: np.ndarray) -> float:
+    """``th' cov^-1 th`` (chi^2 with len(th) degrees of freedom)."""
+    return float(th @ np.linalg.lstsq(cov, th, rcond=None)[0])
+
+
+def effective_n(e: np.ndarray, windows, max_lag: int = 100) -> float:
+    """Effective number of independent samples of a residual: ``N / (1 + 2 sum rho(k))``,
+    ``rho`` its autocorrelation pooled within windows, summed up to its first drop below
+    0.05; at least one per seek [-]."""
+    segs = segments(windows, e)
+    den = sum(float(s @ s) for s in segs) or 1e-300
+    tau = 0.0
+    for k in range(1, max_lag + 1):
+        rho = sum(float(s[k:] @ s[:-k]) for s in segs if len(s) > k) / den
+        if rho < 0.05:
+            break
+        tau += rho
+    return max(len(e) / (1.0 + 2.0 * tau), float(len(set(windows.groups))))
+
+
+def bic(e: np.ndarray, k: float, n_eff: float) -> float:
+    """Bayesian information criterion of an output-error residual ``e`` with ``k`` parameters,
+    on ``n_eff`` effective samples (:func:`effective_n` of the reference model's residual):
+    ``n_eff log(SSE / N) + k log(n_eff)``.  (An AR noise model fitted to each residual would
+    reward a large, smooth -- hence predictable -- misfit.)  ``k`` may be negative for a model
+    with fewer parameters than the reference."""
+    return float(n_eff * math.log(max(float(e @ e) / len(e), 1e-300)) + k * math.log(n_eff))
+
+
+def smooth_lstsq(y: np.ndarray, X: np.ndarray, n_free: int, windows,
+                 penalties=(("L2", 2), ("L2", 3), ("L1", 2)), lams=np.logspace(-6, 8, 29), irls: int = 12):
+    """Penalised least squares ``y ~ X theta`` whose last columns are a table along a coordinate:
+    ``|y - X theta|^2 + lam P(D_k theta_table)``, ``D_k`` the k-th differences, the first
+    ``n_free`` columns unpenalised, ``P`` the sum of squares (``"L2"``: a P-spline, smooth) or of
+    absolute values (``"L1"``: trend filtering, piecewise polynomial with few kinks; solved by
+    iteratively reweighted least squares).  The penalty and ``lam`` are chosen by 2-fold
+    cross-validation over seeks (``windows.groups``, alternate seeks).
+
+    Columns are scaled to unit norm and ``lam`` is relative to a typical table entry's data
+    weight, so the grid ``lams`` means the same on any log.  Returns ``(theta, effective
+    parameters of the table, penalty name, lam)``."""
+    K = X.shape[1] - n_free
+    s = np.linalg.norm(X, axis=0); s[s == 0] = 1.0
+    Xs = X / s
+    G, b = Xs.T @ Xs, Xs.T @ y
+    ridge = 1e-12 * np.trace(G) * np.eye(len(G))
+    lens = [bb - aa for aa, bb in windows.bounds]
+    ids = {g: j for j, g in enumerate(dict.fromkeys(windows.groups))}
+    half = np.repeat([ids[g] % 2 == 0 for g in windows.groups], lens)
+    parts = [(Xs[h].T @ Xs[h], Xs[h].T @ y[h], Xs[~h], y[~h]) for h in (half, ~half)]
+
+    def penalty_matrix(D, w):
+        R = np.zeros_like(G)
+        R[n_free:, n_free:] = D.T @ (w[:, None] * D)
+        return R
+
+    def fit(Gi, bi, D, lam, kind):
+        R = penalty_matrix(D, np.ones(len(D)))
+        c = 1.0 / max(float(np.median(np.diag(R)[n_free:])), 1e-300)   # a typical entry's penalty ~ its data weight
+        phi = np.linalg.solve(Gi + lam * c * R + ridge, bi)
+        A = Gi + lam * c * R + ridge
+        if kind == "L1":
+            r0 = np.abs(D @ phi[n_free:])
+            scale = float(np.median(r0)) or 1.0       # |d| / (|d| + eps) ~ L1 with weights in the L2 units
+            eps = 1e-3 * max(float(r0.max()), 1e-300)
+            for _ in range(irls):
+                w = scale / (np.abs(D @ phi[n_free:]) + eps)
+                A = Gi + lam * c * penalty_matrix(D, w) + ridge
+                phi = np.linalg.solve(A, bi)
+        return phi, A
+
+    best = None
+    for kind, k in penalties:
+        D = np.diff(np.eye(K), k, axis=0) / s[n_free:]
+        for lam in lams:
+            cv = sum(float(np.sum((yo - Xo @ fit(Gi, bi, D, lam, kind)[0]) ** 2)) for Gi, bi, Xo, yo in parts)
+            if best is None or cv < best[0]:
+                best = (cv, kind, k, lam, D)
+    _, kind, k, lam, D = best
+    phi, A = fit(G, b, D, lam, kind)
+    edf = float(np.trace(np.linalg.solve(A, G)[n_free:, n_free:]))
+    return phi / s, edf, f"{kind} difference-{k}", float(lam)

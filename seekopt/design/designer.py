@@ -1,0 +1,430 @@
+"""Optimal seek-profile design: a designer built once from a :class:`SeekProblem`, called per length.
+
+Problem (linear plant, one seek of ``K`` tracks, servo rate ``fs``, ``N`` seek samples)::
+
+    find  u_ff(0..N-1) [A], r(0..N-1) [track]       (r = K and u_ff = 0 from N on)
+    s.t.  |y_i(k) - K| <= beta * band     for k >= N_s, every plant i of the robust set
+          |i_i(k, l)|  <= gamma * Imax    total current (feedforward + feedback + hold), all sub-steps
+          |z_hf(f)|    <= hf_tol * band   residual of unmodelled modes, f in [0.45, 0.65] fs
+          M u_ff = [K, 0]                 ZOH rigid model at rest at K (profiles.rigid_endpoint_matrix)
+          |u_ff(k) - u_ff(k-1)| <= slew/fs   (optional)
+
+``y_i`` and ``i_i`` are convolutions of ``u_ff`` and ``r`` with the closed-loop impulse responses of
+plant ``i`` under the drive's controller (:class:`seekopt.design.qp.LoopMaps`, from the one
+simulator).  Objectives:
+
+(a) ``design(K, seek_samples=N)``: minimum residual vibration after the seek (``N_s = N``): the
+    worst ``|PES|`` over the robust set (epigraph ``t``, ``objective="worst"``) or over the nominal
+    plant with the tail energy averaged over the set (``objective="mean"``);
+(b) ``design(K)``: minimum seek-settle time: bisection over ``N_s = N`` (feasibility is monotone in
+    ``N``) with the band constraint, on the sample grid.
+
+Solver statuses are classified (:mod:`seekopt.design.solvers`): only a solver's proof makes a length
+infeasible; numerical trouble is retried with the fallback solvers first, and a length that no
+solver decides is skipped like an infeasible one (the search moves on) and counted in
+:attr:`DesignResult.unresolved_solves`.
+
+The design sees the plant's *linear part*: nonlinear effects (friction, saturation, position bias)
+are not modelled by the optimiser; every design is re-checked on the full plant by
+:func:`seekopt.drive.simulator.simulate_2dof` and a design that fails the check is never returned.
+"""
+from __future__ import annotations
+
+import contextlib
+import math
+from collections import Counter
+from dataclasses import dataclass
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from identification.model.plant import ModalPlant
+
+from seekopt.design import guard as _guard, qp as _qp
+from seekopt.design.predict import SetPrediction, predict_on_set, scale_feedforward_maps
+from seekopt.design.guard import GuardReport
+from seekopt.design.metrics import SeekMetrics, evaluate_profile, worst_case
+from seekopt.design.problem import ProblemError, SeekProblem, check_closed_loop
+from seekopt.design.profiles import Profile, finish_profile, reference_from_model, rigid_endpoint_matrix, t_bang_bang
+from seekopt.design.solvers import QPStatus, SolverChain
+from seekopt.design.working_set import WorkingSetQP
+
+__all__ = ["DesignInfeasible", "DesignError", "DesignResult", "SeekDesigner", "design_seek"]
+
+
+class DesignInfeasible(ProblemError):
+    """The request cannot be met (e.g. seek too short for ``Imax``); names the shortest feasible time."""
+
+
+class DesignError(RuntimeError):
+    """No verified design: every solver failed without proof, or the answer failed the simulator check."""
+
+
+@dataclass
+class DesignResult:
+    """A verified design.
+
+    ``metrics`` are measured by :func:`seekopt.design.metrics.evaluate_profile` on the design plant
+    (the full plant, effects included); ``worst_metrics`` the worst case over the robust set (when
+    checked).  ``prediction`` holds the profile's seek-settle time on every plant of the set (nominal,
+    family members, drift vertices: :class:`seekopt.design.family.SetPrediction`, worst and binding
+    plant) and ``guard`` the worst residual it leaves in the guarded unmodelled modes
+    (:class:`seekopt.design.guard.GuardReport`); both are also in the profile's metadata.
+    ``solve_time_s`` sums the QP solves of this design; ``objective`` is
+    ``"min_settle/<worst|mean>"`` or ``"min_residual/<worst|mean>"``.  ``fallback_solves`` counts the
+    QPs a fallback solver answered after the primary failed without proof; ``unresolved_solves``
+    the QPs no solver decided (skipped).
+    """
+
+    profile: Profile
+    metrics: SeekMetrics
+    status: str
+    solve_time_s: float
+    solver: str
+    objective: str
+    settle_samples: int = 0
+    n_solves: int = 0
+    residual_band: float = float("nan")
+    worst_metrics: SeekMetrics | None = None
+    qp_status: str = ""
+    build_time_s: float = 0.0
+    fallback_solves: int = 0
+    unresolved_solves: int = 0
+    prediction: SetPrediction | None = None
+    guard: GuardReport | None = None
+
+
+class _Stats:
+    """Per-design solve bookkeeping."""
+
+    def __init__(self, primary: str):
+        self.primary = primary
+        self.n, self.t, self.status, self.fallback, self.unresolved = 0, 0.0, "", 0, []
+
+    def add(self, N: int, sol) -> None:
+        self.n += 1
+        self.t += sol.solve_time_s
+        self.status = sol.status
+        if sol.solver != self.primary and sol.outcome in (QPStatus.OPTIMAL, QPStatus.INFEASIBLE):
+            self.fallback += 1
+        if sol.outcome not in (QPStatus.OPTIMAL, QPStatus.INFEASIBLE):
+            self.unresolved.append((N, " -> ".join(f"{a} {b} ({c})" for a, b, c in sol.attempts)))
+
+    def why(self) -> str:
+        return "; ".join(f"N = {n}: {a}" for n, a in self.unresolved[-3:])
+
+
+class SeekDesigner:
+    """Seek designer for one :class:`SeekProblem`; build once, design many times.
+
+    ``SeekDesigner(problem)``; the former keyword form ``SeekDesigner(plant, controller, imax, settle,
+    robust, **options)`` builds the problem with :meth:`SeekProblem.from_options`.  The designer holds
+    what it builds (closed-loop maps, one QP structure and solver chain per seek-size class); the
+    counters ``builds`` (QP structures), ``map_builds`` (closed-loop map sets) and
+    ``solver_builds`` (solvers per name) show the reuse.
+
+    Raises :class:`seekopt.design.problem.ProblemError` at once when the closed loop of a plant of the
+    set under the controller is unstable.
+    """
+
+    def __init__(self, problem, *args, **options):
+        if not isinstance(problem, SeekProblem):
+            problem = SeekProblem.from_options(problem, *args, **options)
+        elif args or options:
+            raise TypeError("SeekDesigner(problem) takes no further arguments")
+        self.problem = p = problem
+        self.plant, self.controller = p.plant, p.controller
+        self.imax, self.settle = p.imax_a, p.settle_band_track
+        self.robust = p.robust
+        self.fs = p.sample_rate_hz
+        self.L = int(p.controller.fast_multiple)
+        self.tail = max(int(round(p.tail_s * self.fs)), 64)
+        self.reference = p.reference
+        self.settings = p.solver
+        self.solver_name = p.solver.qp_solver
+        self.beta, self.gamma = p.band_margin, p.current_margin
+        self.hf_guard, self.hf_gain, self.hf_tol = p.hf_guard, p.hf_gain, p.hf_tol
+        self.guard_bands = _guard.problem_bands(p)     # Nyquist, controller notches, blind bands
+        self.guard_curve = _guard.plant_gain_curve(p.plant)   # what the identification could have seen
+        self.slew = p.slew_a_per_s
+        self.check_robust = p.check_robust
+        self.max_samples = int(p.solver.max_samples)
+        self.thin_above, self.thin_stride = p.solver.thin_above_samples, p.solver.thin_stride
+        self.plants = p.plants()
+        for i, plant in enumerate(self.plants):        # before anything is built
+            try:
+                check_closed_loop(plant, self.controller)
+            except ProblemError as exc:
+                what = "design plant" if i == 0 else f"robust-set plant {i}"
+                raise ProblemError(f"{what}: {exc}") from None
+        self.objective_kind = self.robust.objective if self.robust else "worst"
+        self.ignored_effects = [e.name for e in p.plant.effects if e.kind != "structural"]
+        self._maps, self._maps_h = None, 0
+        self._qps: dict = {}
+        self._ws: dict = {}             # working-set solver per structure
+        self.builds, self.map_builds = 0, 0
+        self.solver_builds: Counter = Counter()
+
+    @classmethod
+    def from_problem(cls, problem: SeekProblem) -> "SeekDesigner":
+        return cls(problem)
+
+    # ------------------------------------------------------------------ structures
+    def _loop_maps(self, horizon: int) -> list:
+        if self._maps is None or self._maps_h < horizon:
+            h = max(horizon, 2 * self._maps_h)
+            # a plant of the set whose gain differs plays the profile through its drive's gain calibration
+            self._maps = [scale_feedforward_maps(_qp.LoopMaps(p, self.controller, h), p) for p in self.plants]
+            self._maps_h = h
+            self.map_builds += 1
+        return self._maps
+
+    def _count_solver(self, name: str) -> None:
+        self.solver_builds[name] += 1
+
+    def _structure(self, nmax: int, epigraph: bool) -> _qp.SeekQP:
+        key = (nmax, epigraph)
+        if key not in self._qps:
+            H = nmax + self.tail
+            maps = self._loop_maps(H)
+            R = None
+            if self.reference != "free":
+                imp = np.zeros(H); imp[0] = 1.0
+                hm = reference_from_model(self._reference_model(), imp, self.fs, H)
+                R = _qp.toeplitz_rows(hm, np.arange(H), H)
+            dfg = _guard.grid_spacing(self.fs, nmax)
+            hf = _guard.guard_rows(self.guard_bands, self.plant.k0, self.fs, self.L, H * self.L, spacing_hz=dfg,
+                                   extra_hz=_guard.loop_peaks(maps[0], self.guard_bands, self.fs, dfg),
+                                   curve=self.guard_curve)
+            band_plants = range(len(self.plants)) if self.objective_kind == "worst" else [0]
+            s = self.settings
+            self._qps[key] = _qp.SeekQP(
+                maps, nmax, H, self.imax, self.settle, self.fs, band_plants,
+                lambda n, m: SolverChain(n, m, s.chain, s.options, builds=self._count_solver),
+                epigraph=epigraph, R=R, hf=hf, slew=self.slew, stride=self._stride(nmax))
+            self.builds += 1
+        return self._qps[key]
+
+    def _reference_model(self) -> ModalPlant:
+        return self.plant if self.reference == "model" else ModalPlant(k0=self.plant.k0,
+                                                                      delay_s=self.plant.total_delay_s)
+
+    def _stride(self, nmax: int) -> int:
+        """Row stride of the non-nominal plants' band rows (1: every sample)."""
+        return 1 if nmax <= self.thin_above else self.thin_stride
+
+    def _classes(self, n_from: int):
+        return [c for c in self.settings.size_classes if n_from <= c <= self.max_samples] or [self.max_samples]
+
+    # ------------------------------------------------------------------ solving
+    def _working_set(self, qp: _qp.SeekQP) -> WorkingSetQP:
+        if qp not in self._ws:
+            s = self.settings
+            self._ws[qp] = WorkingSetQP(qp, lambda n, m: SolverChain(n, m, s.chain, s.options,
+                                                                     builds=self._count_solver))
+        return self._ws[qp]
+
+    def _solve(self, qp: _qp.SeekQP, K, n, beta, stats: _Stats, warm=None, epigraph=False):
+        hf_tol = self.hf_tol if self.guard_bands else None
+        args = (K, n, None if epigraph else beta, self.gamma, hf_tol, self.slew)
+        tol = self.settings.violation_tol
+        bounds = qp.bounds(*args)
+
+        def check(x, A=None):       # never trust a status alone: re-check the answer against the data
+            viol = qp.violation(x, K, *bounds[1:], A=A)
+            return f"constraint violation {viol:.2g}" if viol > tol else ""
+        if self.settings.working_set:
+            sol = self._working_set(qp).solve(*args, x0=warm, check=check)
+        else:
+            sol = qp.solver.solve(*qp.data(*args), x0=warm, check=check)
+        stats.add(n, sol)
+        return sol
+
+    def check_seek(self, tracks: float) -> float:
+        """Reject at once (before any QP is built) a seek no design can meet: non-finite or zero
+        ``tracks``, a rigid-body bang-bang time ``T_bb`` beyond the longest design horizon, or a
+        holding current above the design current limit.  Returns ``tracks`` as float."""
+        K = float(tracks)
+        if not math.isfinite(K) or K == 0:
+            raise ProblemError(f"tracks must be a non-zero number, not {tracks!r}")
+        tbb = t_bang_bang(K, self.plant.k0, self.imax)
+        if tbb * self.fs > self.max_samples:
+            raise DesignInfeasible(
+                f"seek of {K:g} tracks at Imax {self.imax:g} A needs at least T_bb = {tbb * 1e3:.4g} ms = "
+                f"{tbb * self.fs:.1f} samples, beyond the longest design horizon of {self.max_samples} samples "
+                f"({self.max_samples / self.fs * 1e3:.4g} ms): raise Imax or the horizon (SolverSettings.max_samples)")
+        if abs(self.plant.bias_a) >= self.gamma * self.imax:
+            raise DesignInfeasible(f"holding current {abs(self.plant.bias_a):g} A (plant bias) leaves no current "
+                                   f"within {self.gamma:g} x Imax = {self.gamma * self.imax:g} A")
+        return K
+
+    def shortest_feasible(self, tracks: float) -> int:
+        """Fewest seek samples for which currents, guard and rest-to-rest can be met (no band);
+        -1 when none within the horizon (lengths no solver decides count as not feasible)."""
+        K = self.check_seek(tracks)
+        with self._blas():
+            return self._shortest_feasible(K)
+
+    def _shortest_feasible(self, K: float) -> int:
+        stats = _Stats(self.solver_name)
+        epi = True          # the structure objective (a) uses
+        lo = max(int(math.floor(t_bang_bang(K, self.plant.k0, self.imax) * self.fs)) - 1, 0)
+        for c in self._classes(lo + 1):
+            qp = self._structure(c, epi)
+            if self._solve(qp, K, c, None, stats, epigraph=epi).success:
+                hi = c
+                break
+        else:
+            return -1
+        while hi - lo > 1:
+            mid = (lo + hi) // 2
+            if self._solve(qp, K, mid, None, stats, epigraph=epi).success:
+                hi = mid
+            else:
+                lo = mid
+        return hi
+
+    def _infeasible(self, K, n_req) -> DesignInfeasible:
+        tbb = t_bang_bang(K, self.plant.k0, self.imax)
+        n = self._shortest_feasible(K)
+        what = (f"shortest feasible seek time is {n} samples ({n / self.fs * 1e3:.4g} ms)" if n > 0 else
+                f"no feasible seek within {self.max_samples} samples")
+        return DesignInfeasible(f"seek of {K:g} tracks in {n_req} samples ({n_req / self.fs * 1e3:.4g} ms) "
+                                f"cannot be met at Imax {self.imax:g} A: {what}; "
+                                f"T_bb = {tbb * 1e3:.4g} ms = {tbb * self.fs:.2f} samples")
+
+    def _failed(self, K, what, stats: _Stats) -> DesignError:
+        return DesignError(f"QP solvers {'/'.join(self.settings.chain)} failed without proof for {K:g} tracks "
+                           f"{what}: {stats.why()}")
+
+    def _blas(self):
+        """BLAS thread limit for a design (:attr:`SolverSettings.blas_threads`)."""
+        n = self.settings.blas_threads
+        return threadpool_limits(limits=int(n), user_api="blas") if n else contextlib.nullcontext()
+
+    def design(self, tracks: float, seek_samples: int | None = None) -> DesignResult:
+        """Design the seek of ``tracks`` tracks.
+
+        ``seek_samples=None``: minimum seek-settle time (objective (b)); an integer: minimum residual
+        vibration for that seek length (objective (a)).  Raises :class:`DesignInfeasible` when the
+        request cannot be met and :class:`DesignError` when no verified design is found.  Runs with
+        at most :attr:`SolverSettings.blas_threads` BLAS threads.
+        """
+        K = self.check_seek(tracks)
+        with self._blas():
+            return self._design(K, seek_samples)
+
+    def _design(self, K: float, seek_samples: int | None) -> DesignResult:
+        stats = _Stats(self.solver_name)
+        n_rigid = int(math.ceil(t_bang_bang(K, self.plant.k0, self.imax) * self.fs - 1e-9))
+        if seek_samples is not None:
+            N = int(seek_samples)
+            if N < max(n_rigid - 1, 1) or N > self.max_samples:
+                raise self._infeasible(K, N)
+            epi = True      # residual epigraph over the band plants (all: worst; nominal: mean)
+            qp = self._structure(self._classes(N)[0], epi)
+            sol = self._solve(qp, K, N, None, stats, epigraph=epi)
+            if not sol.success:
+                if sol.infeasible:
+                    n_min = self._shortest_feasible(K)
+                    if n_min < 0 or N < n_min:
+                        raise self._infeasible(K, N)
+                raise self._failed(K, f"in {N} samples", stats)
+            return self._finish(qp, sol, K, N, stats, f"min_residual/{self.objective_kind}", strict=False)
+        # (b) minimum seek-settle time: size class whose longest seek settles, then bisection
+        lo = max(n_rigid - 2, 0)
+        # long seeks settle no sooner than 1.25 T_bb (measured 1.37-1.58 for K = 1000-10000): skip the
+        # hopeless big classes below that (lo stays at T_bb, so the bisection still covers them)
+        first = max(n_rigid, 1) if n_rigid <= self.thin_above else int(math.ceil(1.25 * n_rigid))
+        for c in self._classes(first):
+            qp = self._structure(c, False)
+            sol = self._solve(qp, K, c, self.beta, stats)
+            if sol.success:
+                break
+            if sol.infeasible:      # proven: every shorter seek is infeasible too
+                lo = max(lo, c)
+            # no proof: move on to the next class, the bisection below covers this length again
+        else:
+            if stats.unresolved:
+                raise self._failed(K, f"within {self.max_samples} samples", stats)
+            tbb = t_bang_bang(K, self.plant.k0, self.imax)
+            raise DesignInfeasible(f"seek of {K:g} tracks cannot settle within {self.max_samples} samples "
+                                   f"at Imax {self.imax:g} A (T_bb = {tbb * 1e3:.4g} ms)")
+        hi, best = c, sol
+        while hi - lo > 1:
+            mid = (lo + hi) // 2
+            s = self._solve(qp, K, mid, self.beta, stats, warm=best.x)
+            if s.success:
+                hi, best = mid, s
+            else:           # infeasible, or undecided: either way not a design at ``mid``
+                lo = mid
+        # verify by simulation; step up on failure (tail beyond the QP horizon, row thinning)
+        for N in range(hi, c + 1):
+            if N != hi:
+                best = self._solve(qp, K, N, self.beta, stats, warm=best.x)
+                if not best.success:
+                    continue
+            try:
+                return self._finish(qp, best, K, N, stats, f"min_settle/{self.objective_kind}", strict=True)
+            except DesignError:
+                continue
+        raise DesignError(f"no design for {K:g} tracks passed the simulator check up to {c} samples")
+
+    # ------------------------------------------------------------------ verification
+    def _finish(self, qp, sol, K, N, stats: _Stats, objective, strict) -> DesignResult:
+        u, r = qp.unpack(sol.x, K, N)
+        M = rigid_endpoint_matrix(N, self.plant.k0, 1.0 / self.fs)
+        u = np.clip(u, -self.imax, self.imax)
+        for _ in range(3):      # exact rest-to-rest: least-norm correction on the unsaturated samples
+            miss = np.array([K, 0.0]) - M @ u
+            free = np.abs(u) < self.imax * (1 - 1e-9)
+            if np.max(np.abs(miss)) <= 1e-9 or free.sum() < 2:
+                break
+            Mf = M[:, free]
+            u[free] += Mf.T @ np.linalg.solve(Mf @ Mf.T, miss)
+            u = np.clip(u, -self.imax, self.imax)
+        if np.max(np.abs(M @ u - [K, 0.0])) > 1e-6 or not np.all(np.isfinite(u)):
+            raise DesignError(f"design misses rest at {K:g} tracks")
+        meta = {"plant_hash": self.plant.hash(), "controller_hash": self.controller.hash(),
+                **({"family_hashes": ";".join(p.hash() for p in self.problem.family)} if self.problem.family else {}),
+                "design_objective": objective, "solver": self.solver_name, "reference": self.reference,
+                "robust": self.robust.to_string() if self.robust else "none",
+                "band_margin": self.beta, "current_margin": self.gamma, "design_settle_samples": N}
+        if self.ignored_effects:
+            meta["effects_not_in_design"] = ";".join(self.ignored_effects)
+        if r is not None:   # jointly designed reference; one closing sample shows the hold (u = 0, r = K)
+            prof = Profile(np.r_[u, 0.0], np.r_[r, K], self.fs, K, self.imax, self.settle, "optimal", N, meta)
+        else:
+            prof = finish_profile(u, K, self.fs, self.imax, self._reference_model(), "optimal", self.settle,
+                                  meta=meta)
+            prof.seek_samples = N
+        metrics = evaluate_profile(self.plant, self.controller, prof, settle=self.settle)   # the one simulator
+        if not metrics.peak_current_a <= self.imax * (1 + 1e-9):
+            raise DesignError(f"design exceeds Imax in simulation ({metrics.peak_current_a:.4g} A)")
+        if strict and not metrics.settle_time_s * self.fs <= N + 1 + 1e-9:
+            raise DesignError(f"design does not settle by sample {N} in simulation")
+        worst, pred = None, None
+        if len(self.plants) > 1:        # honest predictions: every plant of the set, by the one simulator
+            pred = predict_on_set(self.plants, self.controller, prof, self.settle, self.plant.k0, first=metrics)
+            prof.meta.update(pred.to_meta())
+            if self.check_robust:
+                worst = worst_case(pred.metrics)
+        guard = None
+        if self.guard_bands:
+            guard = _guard.guard_report(self.plant, self.controller, prof, self.guard_bands, self.settle,
+                                        curve=self.guard_curve)
+            prof.meta.update(guard.to_meta())
+        prof.meta["design_status"] = "verified"
+        return DesignResult(prof, metrics, "verified", stats.t, sol.solver or self.solver_name, objective,
+                            settle_samples=N, n_solves=stats.n,
+                            residual_band=qp.residual(sol.x, K, N) * 1.0, worst_metrics=worst,
+                            qp_status=stats.status,
+                            build_time_s=sum(q.build_time_s for q in self._qps.values()),
+                            fallback_solves=stats.fallback, unresolved_solves=len(stats.unresolved),
+                            prediction=pred, guard=guard)
+
+
+def design_seek(plant: ModalPlant, controller, tracks: float, imax: float, settle: float = 0.1,
+                robust=None, **options) -> DesignResult:
+    """One-shot :class:`SeekDesigner` ``(plant, controller, imax, settle, robust).design(tracks)``."""
+    return SeekDesigner(plant, controller, imax, settle, robust, **options).design(tracks)

@@ -1,0 +1,361 @@
+"""The unmodelled-mode guard: where the identified model is blind, the profile must not ring.
+
+An identification from seek logs cannot see a mode where the log carries no excitation above the
+noise: near and above the Nyquist frequency (aliasing), and inside the controller's notches and
+multirate-filter zeros (the feedback current is notched there, so the loop's own noise and the
+closed-loop seek current hardly drive the mode).  A mode missed there is also one the feedback
+cannot damp (the controller's gain is low in its notch): it rings for milliseconds.
+
+The guard bounds, for every frequency ``f`` of those *blind bands*, the residual vibration the
+profile's total current (feedforward + feedback + hold, every sub-step) leaves in an undamped mode
+``k0 g / (s^2 + w^2)``::
+
+    |z(f)| <= tol * band          (g the band's guard gain, default 1: a unit-gain mode)
+
+with the linear rows of :func:`seekopt.design.qp.mode_residual_rows` (one map for every band; the
+former fixed 0.45-0.65 fs guard is the ``nyquist`` band here).  Bands come from
+
+* the servo rate: ``[nyquist[0], nyquist[1]] * fs`` (:func:`nyquist_band`);
+* the controller, read from its frequency response (:func:`controller_notches`): every notch at
+  least ``notch_depth_db`` below the line joining the controller's response an octave either side,
+  the band being where it is at least 3 dB below that line;
+* the identification: ``plant.meta["blind_bands"]`` (written by
+  :func:`identification.estimate.blind.blind_bands`), with the gain a mode there could have and
+  still escape detection;
+* bands the user states (``SeekProblem.guard_bands_hz``).
+
+:func:`guard_report` measures a finished profile's worst guard residual (in bands) by simulation.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from seekopt.design.qp import mode_residual_phasors, mode_residual_rows
+
+__all__ = ["GuardBand", "controller_notches", "nyquist_band", "plant_blind_bands", "plant_gain_curve", "curve_gain",
+           "band_gains", "merge_bands",
+           "problem_bands", "guard_grid", "grid_spacing", "loop_peaks", "guard_rows", "GRID_PER_LOBE", "GuardReport", "guard_report"]
+
+
+@dataclass
+class GuardBand:
+    """One band where an unmodelled mode may hide.
+
+    Attributes
+    ----------
+    lo_hz, hi_hz : float
+        Band edges [Hz].
+    reason : str
+        ``nyquist``, ``notch``, ``blind`` (identification) or ``user``.
+    gain : float
+        Gain (relative to the rigid body) of the hypothetical mode guarded against.
+    """
+
+    lo_hz: float
+    hi_hz: float
+    reason: str = "user"
+    gain: float = 1.0
+
+    def to_dict(self) -> dict:
+        return {k: (float(v) if k != "reason" else v) for k, v in asdict(self).items()}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "GuardBand":
+        return cls(float(d["lo_hz"]), float(d["hi_hz"]), str(d.get("reason", "user")), float(d.get("gain", 1.0)))
+
+    def __str__(self) -> str:
+        return f"{self.lo_hz:.0f}-{self.hi_hz:.0f} Hz ({self.reason}, g {self.gain:g})"
+
+
+def nyquist_band(fs: float, lo_frac: float = 0.45, hi_frac: float = 0.65, gain: float = 1.0) -> GuardBand:
+    """Near and above Nyquist: ``[lo_frac, hi_frac] * fs`` [Hz] (``fs`` the servo rate)."""
+    return GuardBand(lo_frac * fs, hi_frac * fs, "nyquist", gain)
+
+
+def _section_groups(controller):
+    """``{rate_multiple: [sections]}`` of a controller (each rate group's own frequency response
+    is valid up to half its own rate)."""
+    groups = {}
+    for sec in controller.sections:
+        groups.setdefault(int(sec.get("rate_multiple", 1)), []).append(sec)
+    return groups
+
+
+def _notches_of(f: np.ndarray, g: np.ndarray, depth_db: float, edge_db: float, top_edge: bool = True) -> list:
+    """Index ranges ``(j0, j1)`` of the notches of the dB response ``g`` on the log grid ``f``."""
+    lf = np.log(f)
+    octave = math.log(2.0)
+    out = []
+    n = len(f)
+    for i in range(1, n if top_edge else n - 1):
+        if not (g[i] < g[i - 1] and (i == n - 1 or g[i] <= g[i + 1])):
+            continue                      # interior minima, and the top edge (a zero at the group's Nyquist)
+        left = np.nonzero((lf >= lf[i] - octave) & (lf <= lf[i]))[0]
+        right = np.nonzero((lf >= lf[i]) & (lf <= lf[i] + octave))[0]
+        a, b = left[np.argmax(g[left])], right[np.argmax(g[right])]
+
+        def ref(j, a=a, b=b):
+            if b == i:
+                return g[a]
+            return g[a] + (g[b] - g[a]) * (lf[j] - lf[a]) / (lf[b] - lf[a])
+        if a == i or ref(i) - g[i] < depth_db:
+            continue
+        j0, j1 = i, i
+        while j0 > a and ref(j0 - 1) - g[j0 - 1] >= edge_db:
+            j0 -= 1
+        while j1 < b and ref(j1 + 1) - g[j1 + 1] >= edge_db:
+            j1 += 1
+        out.append((j0, j1))
+    return out
+
+
+def controller_notches(controller, depth_db: float = 6.0, edge_db: float = 3.0, f_min_hz: float | None = None,
+                       n: int = 4000, gain: float = 1.0) -> list:
+    """Notches and filter zeros of ``controller``, read from its frequency response.
+
+    Each rate group of the cascade (the sections running at ``m fs``) is evaluated on its own, on a
+    log grid from ``f_min_hz`` (default ``fs / 100``) to just below its own Nyquist frequency
+    ``m fs / 2`` (a group's response is only meaningful there; the PES-rate part's images above
+    ``fs / 2`` are not notches).  At each local minimum of ``|C_m(f)|`` [dB] the reference level is the
+    straight line (in log frequency) between the largest values within an octave below and above it
+    (the group's trend: integral action, lead, roll-off); a minimum at least ``depth_db`` below that
+    line is a notch, and its band is where the response stays at least ``edge_db`` below the line.
+    A zero on the unit circle (e.g. of a multirate averaging filter) is a notch of unbounded depth,
+    also at the top edge of a multirate group's grid (the PES-rate group's roll-off towards ``fs / 2``
+    is left to :func:`nyquist_band`).
+
+    Returns
+    -------
+    list of GuardBand
+        ``reason="notch"``, sorted by frequency, overlapping bands joined.
+    """
+    fs = float(controller.sample_rate_hz)
+    out = []
+    for m, secs in _section_groups(controller).items():
+        f = np.geomspace(f_min_hz or fs / 100.0, 0.5 * m * fs * (1 - 1e-5), int(n))
+        h = type(controller)(f"rate {m}", fs, secs).freqresp(f)     # this group alone, each section at m fs
+        g = 20 * np.log10(np.maximum(np.abs(h), 1e-300))
+        # a multirate section's zero at its own Nyquist counts; the PES-rate part's roll-off towards
+        # fs / 2 is the Nyquist band's business (nyquist_band)
+        out += [GuardBand(float(f[a]), float(f[b]), "notch", gain)
+                for a, b in _notches_of(f, g, depth_db, edge_db, top_edge=m > 1)]
+    return merge_bands(out)
+
+
+def plant_blind_bands(plant, gain_cap: float = 1.0) -> list:
+    """The identification's low-excitation blind bands, ``plant.meta["blind_bands"]`` (a list of dicts
+    with ``lo_hz``, ``hi_hz``, ``reason`` and ``min_detectable_gain``): the gain guarded is the gain a
+    mode could have there and still escape detection, at most ``gain_cap``.  The band above the
+    identification's range is left to the Nyquist band (:func:`nyquist_band`), which states how far
+    above Nyquist modes are guarded."""
+    out = []
+    for d in (getattr(plant, "meta", {}) or {}).get("blind_bands", []) or []:
+        if str(d.get("reason", "")).startswith("above"):
+            continue                      # near and above Nyquist: the Nyquist band states its own range
+        try:
+            lo, hi = float(d["lo_hz"]), float(d["hi_hz"])
+        except (KeyError, TypeError, ValueError):
+            continue
+        g = d.get("min_detectable_gain")
+        g = gain_cap if g is None or not math.isfinite(float(g)) else min(float(g), gain_cap)
+        if hi > lo and g > 0:
+            out.append(GuardBand(lo, hi, "blind", g))
+    return out
+
+
+def plant_gain_curve(plant):
+    """The identification's detectable-gain curve ``plant.meta["detectable_gain_curve"]`` as
+    ``(freqs_hz, g_min)`` arrays (``inf`` where unbounded), or None when the plant has none."""
+    pts = (getattr(plant, "meta", {}) or {}).get("detectable_gain_curve")
+    if not pts:
+        return None
+    try:
+        f = np.array([float(a) for a, _ in pts])
+        g = np.array([np.inf if b is None else float(b) for _, b in pts])
+    except (TypeError, ValueError):
+        return None
+    ok = np.isfinite(f) & (f > 0)
+    return (f[ok], g[ok]) if ok.sum() >= 2 else None
+
+
+def curve_gain(curve, freqs_hz) -> np.ndarray:
+    """``g_min`` of ``curve`` at ``freqs_hz`` (log-log interpolation; ``inf`` outside its range)."""
+    f = np.atleast_1d(np.asarray(freqs_hz, dtype=float))
+    cf, cg = curve
+    lg = np.log(np.where(np.isfinite(cg), cg, 1e300))
+    out = np.exp(np.interp(np.log(f), np.log(cf), lg))
+    out[(f < cf[0]) | (f > cf[-1])] = np.inf
+    return np.where(out > 1e299, np.inf, out)
+
+
+def merge_bands(bands: list) -> list:
+    """Bands sorted by frequency; overlapping bands of the same reason and gain are joined."""
+    out = []
+    for b in sorted(bands, key=lambda b: (b.lo_hz, b.hi_hz)):
+        if out and b.lo_hz <= out[-1].hi_hz and b.reason == out[-1].reason and b.gain == out[-1].gain:
+            out[-1] = GuardBand(out[-1].lo_hz, max(out[-1].hi_hz, b.hi_hz), b.reason, b.gain)
+        else:
+            out.append(b)
+    return out
+
+
+def problem_bands(problem) -> list:
+    """Every guard band of a :class:`seekopt.design.problem.SeekProblem`: its Nyquist band
+    (``hf_guard``, gain ``hf_gain``), the controller's notches (``guard_notch_depth_db``, gain
+    ``hf_gain``), the design plant's blind bands (``plant.meta``) and ``guard_bands_hz``
+    (``(lo, hi)`` or ``(lo, hi, gain)``)."""
+    fs = problem.sample_rate_hz
+    bands = []
+    if problem.hf_guard:
+        bands.append(nyquist_band(fs, *problem.hf_guard, gain=problem.hf_gain))
+    depth = getattr(problem, "guard_notch_depth_db", None)
+    if depth:
+        bands += controller_notches(problem.controller, depth, gain=problem.hf_gain)
+    bands += plant_blind_bands(problem.plant, gain_cap=problem.hf_gain)
+    for b in getattr(problem, "guard_bands_hz", ()) or ():
+        bands.append(GuardBand(float(b[0]), float(b[1]), "user", float(b[2]) if len(b) > 2 else problem.hf_gain))
+    return merge_bands(bands)
+
+
+def band_gains(band: GuardBand, freqs_hz, curve=None) -> np.ndarray:
+    """Guard gain at ``freqs_hz`` in ``band``: ``band.gain``, or for notch and blind bands, where the
+    identification's detectable-gain ``curve`` (:func:`plant_gain_curve`) says a smaller mode would
+    have been seen, that smaller gain (the largest mode that could hide there)."""
+    f = np.atleast_1d(np.asarray(freqs_hz, dtype=float))
+    g = np.full(f.shape, float(band.gain))
+    if curve is not None and band.reason in ("notch", "blind"):
+        g = np.minimum(g, curve_gain(curve, f))
+    return g
+
+
+def guard_grid(bands: list, spacing_hz: float, fmin_hz: float = 1.0, curve=None):
+    """Frequencies [Hz] and gains (:func:`band_gains`) covering ``bands`` at most ``spacing_hz`` apart
+    (each band's edges included; where bands overlap the larger gain is kept)."""
+    fr, gn = [], []
+    for b in bands:
+        lo, hi = max(b.lo_hz, fmin_hz), b.hi_hz
+        if hi < lo:
+            continue
+        m = max(int(math.ceil((hi - lo) / spacing_hz)), 1)
+        x = np.linspace(lo, hi, m + 1) if hi > lo else np.array([lo])
+        fr.append(x); gn.append(band_gains(b, x, curve))
+    if not fr:
+        return np.zeros(0), np.zeros(0)
+    f, g = np.concatenate(fr), np.concatenate(gn)
+    order = np.lexsort((-g, f))
+    f, g = f[order], g[order]
+    keep = np.r_[True, np.diff(f) > 1e-9 * f[1:]]
+    return f[keep], g[keep]
+
+
+#: Guard grid points per ``fs / N`` (``N`` the seek-size class): a seek's current spectrum has lobes about
+#: ``fs / N`` wide, and constraints on a grid of ``fs / (2 N)`` let a lobe reach 3 x the bound between
+#: two points (measured: K = 200, unit-gain modes in the NSS notches).
+GRID_PER_LOBE = 4
+
+
+def grid_spacing(fs: float, nmax: int, floor_hz: float = 25.0) -> float:
+    """Guard grid spacing [Hz] for seeks of at most ``nmax`` samples: ``fs / (GRID_PER_LOBE nmax)``."""
+    return max(fs / (GRID_PER_LOBE * max(int(nmax), 1)), floor_hz)
+
+
+def loop_peaks(maps, bands: list, fs: float, spacing_hz: float) -> np.ndarray:
+    """Frequencies [Hz] inside ``bands`` where the closed loop's current responses have a peak
+    narrower than ``spacing_hz``.
+
+    The total current is ``i = h_iu * u_ff + h_ir * r``: the feedforward and reference of an
+    ``N``-sample seek have spectra smooth on the scale ``fs / N`` (the uniform guard grid), but a
+    lightly damped closed-loop pole makes ``|H_iu|`` or ``|H_ir|`` peak within its bandwidth and a
+    uniform grid may step over it.  Each such peak of the two responses of ``maps``
+    (:class:`seekopt.design.qp.LoopMaps`, the one simulator's) is returned with the points half its
+    half-power width either side."""
+    L = int(maps.L)
+    h = 1.0 / (L * fs)
+    out = []
+    for resp in (maps.i_u, maps.i_r):
+        x = np.asarray(resp, dtype=float).reshape(-1)
+        step = min(spacing_hz / 8.0, 1.0 / (2 * x.size * h))
+        for b in bands:
+            f = np.arange(max(b.lo_hz, step), b.hi_hz + step, step)
+            if f.size < 3:
+                continue
+            mag = np.abs(np.exp(-2j * np.pi * np.outer(f * h, np.arange(x.size))) @ x)
+            db = 20 * np.log10(np.maximum(mag, 1e-300))
+            for i in range(1, f.size - 1):
+                if not (db[i] > db[i - 1] and db[i] >= db[i + 1]):
+                    continue
+                lo, hi = i, i
+                while lo > 0 and db[lo] > db[i] - 3.0:
+                    lo -= 1
+                while hi < f.size - 1 and db[hi] > db[i] - 3.0:
+                    hi += 1
+                if db[lo] > db[i] - 3.0 or db[hi] > db[i] - 3.0 or f[hi] - f[lo] >= spacing_hz:
+                    continue              # not a narrow resonance peak: the uniform grid follows it
+                half = 0.25 * (f[hi] - f[lo])
+                out += [f[i] - half, f[i], f[i] + half]
+    return np.unique(np.round(np.asarray(out, dtype=float), 3))
+
+
+def guard_rows(bands: list, k0: float, fs: float, L: int, nsub: int, spacing_hz: float, npoly: int = 4,
+               extra_hz=(), curve=None):
+    """``(G, freqs)``: the guard's linear rows on the sub-step currents (for :class:`seekopt.design.qp.SeekQP`)
+    on the grid of :func:`guard_grid` plus ``extra_hz`` (e.g. :func:`loop_peaks`) inside the bands,
+    or ``None`` when there is no band."""
+    f, g = guard_grid(bands, spacing_hz, curve=curve)
+    if not f.size:
+        return None
+    for x in np.asarray(extra_hz, dtype=float):
+        gx = [float(band_gains(b, x, curve)[0]) for b in bands if b.lo_hz <= x <= b.hi_hz]
+        if gx:
+            f, g = np.r_[f, x], np.r_[g, max(gx)]
+    keep = g > 0
+    f, g = f[keep], g[keep]
+    if not f.size:
+        return None
+    return mode_residual_rows(mode_residual_phasors(k0, fs, L, nsub, f, g), npoly), f
+
+
+@dataclass
+class GuardReport:
+    """Worst residual a profile leaves in the guarded modes.
+
+    ``worst_band`` is ``max |z(f)| / settle band`` over the bands' grid (guard gain included),
+    ``worst_hz`` where, ``worst_reason`` the band's reason; ``per_band`` the worst per band."""
+
+    worst_band: float
+    worst_hz: float
+    worst_reason: str
+    per_band: list
+
+    def to_meta(self) -> dict:
+        return {"guard_worst_residual_band": round(self.worst_band, 4), "guard_worst_hz": round(self.worst_hz, 1),
+                "guard_bands": ";".join(f"{b.lo_hz:.0f}-{b.hi_hz:.0f}:{b.reason}:{b.gain:g}"
+                                        for b, _ in self.per_band)}
+
+
+def guard_report(plant, controller, profile, bands: list, settle: float | None = None,
+                 spacing_hz: float = 25.0, horizon_s: float | None = None, curve=None) -> GuardReport:
+    """Play ``profile`` on ``plant`` (:func:`seekopt.design.metrics.simulate_profile`, sub-steps
+    recorded) and measure the residual of the guarded modes left by the total current."""
+    from seekopt.design.metrics import DEFAULT_TAIL_S
+    from seekopt.drive.simulator import simulate_2dof
+    band = float(settle or profile.settle_track)
+    fs, L = float(controller.sample_rate_hz), int(controller.fast_multiple)
+    n = profile.n + int(round(DEFAULT_TAIL_S * fs)) if horizon_s is None else int(round(horizon_s * fs))
+    u, r = profile.padded(max(n, profile.n + 1))
+    sim = simulate_2dof(plant, controller, u - plant.bias_a, r, position0=0.0, record_substeps=True)
+    i_sub = (sim.current_sub_a + plant.bias_a).ravel()       # the seek's current (steady hold removed)
+    per, worst = [], (0.0, float("nan"), "")
+    for b in bands:
+        f, g = guard_grid([b], spacing_hz, curve=curve)
+        if not f.size:
+            continue
+        z = np.abs(mode_residual_phasors(plant.k0, fs, L, i_sub.size, f, g) @ i_sub) / band
+        k = int(np.argmax(z))
+        per.append((b, float(z[k])))
+        if z[k] > worst[0]:
+            worst = (float(z[k]), float(f[k]), b.reason)
+    return GuardReport(worst[0], worst[1], worst[2], per)

@@ -1,0 +1,388 @@
+"""Full-stroke seeks: accelerate - coast - arrive, under an optional velocity limit.
+
+A drive's stroke is hundreds of thousands of tracks; above a few thousand the VCM's back-EMF caps the
+velocity and the seek coasts.  Designing such a seek as one rest-to-rest QP makes the problem grow with
+the coast; here the coast is free and only one short segment is optimised.
+
+The velocity step
+-----------------
+A *velocity step* of ``d`` tracks per sample is a feedforward ``u_A`` over ``N`` samples and a reference
+``r_A`` that leave the 2DOF loop ``u = u_ff + C(r - y)`` on its ramp equilibrium::
+
+    r_A(k) = ramp(k) = k0 Ts^2 sum_j u_A(j) (k - tau/Ts - j - 1/2)      for k >= N   (ZOH rigid body with
+    k0 Ts^2 sum_j u_A(j) = d                                                          input delay tau)
+
+(the head moving at ``d`` track/sample with zero current, the modes at rest, zero error: the loop with a
+double-integrator plant and an integrating controller is type 3, so it tracks the ramp with zero error).
+It is designed by a QP on the condensed linear loop (:class:`seekopt.design.qp.LoopMaps`, from the one
+simulator) over the same plant set, current limit, unmodelled-mode guard and solver chain as
+:class:`seekopt.design.designer.SeekDesigner` (one :class:`seekopt.design.problem.SeekProblem`): minimum ``N`` such that ``|y_i(k) - r_A(k)| <= beta band`` for
+``k >= N`` on every plant ``i`` of the set, the total current within ``gamma Imax - |bias|`` (so that the
+mirrored step, ``-u_A``, with the hold current is within ``gamma Imax`` too), the rigid velocity never above
+``d``, and the guard's residual within half its tolerance (the two steps of a seek add).
+
+The seek
+--------
+The loop is linear and time-invariant, so a seek of ``K`` tracks is the difference of two steps::
+
+    m = ceil(K / d),  s = K / (m d) <= 1
+    u(k) = s (u_A(k) - u_A(k - m)),   r(k) = s (r_A(k) - r_A(k - m))
+
+The head accelerates, coasts at ``s d`` with zero feedforward, and arrives with the mirror of the
+acceleration; after both steps the reference is exactly ``s m d = K`` and the head is at rest there
+(rest-to-rest exactness), and the position error is ``s (e_A(k) - e_A(k - m))`` with ``e_A = y_A - r_A``:
+the arrival settles like the step settles onto its ramp.  The design cost is one small QP per velocity,
+whatever the coast; every seek is checked on the full design plant by
+:func:`seekopt.drive.simulator.simulate_2dof` (via :func:`seekopt.design.metrics.evaluate_profile`).
+Shorter seeks (no room for a coast) go to :class:`seekopt.design.designer.SeekDesigner`; its peak rigid
+velocity is checked against the limit.
+
+Velocity limit from the plant (``ModalPlant.meta`` keys, SI units)
+------------------------------------------------------------------
+``vmax_mps``
+    Velocity limit at the head [m/s].
+``back_emf_v_per_mps`` and ``supply_v`` (optional ``coil_resistance_ohm``, default 0)
+    Back-EMF constant at the head [V/(m/s)] and amplifier supply [V]: the amplifier still drives ``Imax``
+    up to ``vmax = (supply_v - coil_resistance_ohm * Imax) / back_emf_v_per_mps``.
+``stroke_mm`` (or ``stroke_track``)
+    Full stroke [mm] (or [track] at the plant's track pitch).
+Velocities in m/s become track/s with the plant's ``track_pitch_nm``.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from identification.model.plant import ModalPlant
+
+from seekopt.design.velocity_step import StepQP, VelocityStep
+
+__all__ = ["LongSeekSpec", "VelocityStep", "LongSeekDesigner", "LongSeekError", "vmax_from_plant",
+           "stroke_from_plant", "t_accel_coast_decel"]
+
+
+class LongSeekError(ValueError):
+    """Bad long-seek settings (one-line message)."""
+
+
+def _pos(v, what):
+    if v is not None and not (math.isfinite(v) and v > 0):
+        raise LongSeekError(f"{what} must be a positive number (got {v})")
+    return None if v is None else float(v)
+
+
+def vmax_from_plant(plant: ModalPlant, imax: float) -> float | None:
+    """Velocity limit [track/s] from the plant's metadata (module notes), or None."""
+    m, pitch = plant.meta or {}, plant.track_pitch_nm
+    try:
+        if "vmax_mps" in m:
+            v = float(m["vmax_mps"])
+        elif "back_emf_v_per_mps" in m and "supply_v" in m:
+            v = (float(m["supply_v"]) - float(m.get("coil_resistance_ohm", 0.0)) * imax) / float(
+                m["back_emf_v_per_mps"])
+        else:
+            return None
+    except (TypeError, ValueError):
+        raise LongSeekError("plant meta: velocity-limit keys must be numbers") from None
+    if not pitch:
+        raise LongSeekError("plant meta gives a velocity limit in m/s but the plant has no track_pitch_nm")
+    if not (math.isfinite(v) and v > 0):
+        raise LongSeekError(f"plant meta: velocity limit {v:g} m/s is not positive (supply below R*Imax?)")
+    return v / (pitch * 1e-9)
+
+
+def stroke_from_plant(plant: ModalPlant) -> float | None:
+    """Full stroke [track] from ``meta["stroke_track"]`` or ``meta["stroke_mm"]`` (module notes), or None."""
+    m = plant.meta or {}
+    try:
+        if "stroke_track" in m:
+            return _pos(float(m["stroke_track"]), "plant meta stroke_track")
+        if "stroke_mm" in m and plant.track_pitch_nm:
+            return _pos(float(m["stroke_mm"]) * 1e6 / plant.track_pitch_nm, "plant meta stroke_mm")
+    except (TypeError, ValueError):
+        raise LongSeekError("plant meta: stroke must be a number") from None
+    return None
+
+
+def t_accel_coast_decel(tracks: float, k0: float, imax: float, vmax: float | None) -> float:
+    """Rigid-body minimum seek time [s] with current limit ``imax`` and velocity limit ``vmax`` [track/s]:
+    ``K / vmax + vmax / (k0 Imax)`` when the seek reaches ``vmax``, else ``T_bb = 2 sqrt(K / (k0 Imax))``."""
+    a, K = k0 * imax, abs(tracks)
+    if vmax is None or K <= vmax * vmax / a:
+        return 2.0 * math.sqrt(K / a)
+    return K / vmax + vmax / a
+
+
+@dataclass
+class LongSeekSpec:
+    """Long-seek settings.
+
+    Parameters
+    ----------
+    vmax_track_s : float, optional
+        Velocity limit [track/s] (None: none; :meth:`from_plant` reads the plant's metadata).
+    stroke_track : float, optional
+        Full stroke [track]: longer seeks are refused.
+    """
+
+    vmax_track_s: float | None = None
+    stroke_track: float | None = None
+
+    def __post_init__(self):
+        self.vmax_track_s = _pos(self.vmax_track_s, "vmax")
+        self.stroke_track = _pos(self.stroke_track, "stroke")
+
+    @classmethod
+    def from_plant(cls, plant: ModalPlant, imax: float, vmax_track_s=None, stroke_track=None):
+        """Explicit values win over the plant's metadata (module notes)."""
+        v = vmax_track_s if vmax_track_s is not None else vmax_from_plant(plant, imax)
+        s = stroke_track if stroke_track is not None else stroke_from_plant(plant)
+        return cls(v, s)
+
+    def to_dict(self) -> dict:
+        return {"vmax_track_s": self.vmax_track_s, "stroke_track": self.stroke_track}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "LongSeekSpec":
+        return cls(d.get("vmax_track_s"), d.get("stroke_track"))
+
+
+class LongSeekDesigner:
+    """Long seeks for one :class:`seekopt.design.problem.SeekProblem` (module notes); build once, design many.
+
+    ``LongSeekDesigner(problem, spec)``, or the keyword form ``LongSeekDesigner(plant, controller, imax,
+    settle, robust, spec, **options)`` (:meth:`SeekProblem.from_options`).  The velocity step uses the
+    problem's plant set, margins, unmodelled-mode guard, tail and solver chain.
+
+    Parameters
+    ----------
+    problem : SeekProblem
+    spec : LongSeekSpec, optional
+        Velocity limit and stroke (default :meth:`LongSeekSpec.from_plant`).
+    short_designer : object, optional
+        Designer for seeks without a coast (default ``SeekDesigner(problem)``, built on first use).
+    """
+
+    def __init__(self, problem, *args, spec: LongSeekSpec | None = None, short_designer=None, **options):
+        from seekopt.design.problem import SeekProblem
+        if not isinstance(problem, SeekProblem):
+            pos = (problem,) + args
+            if len(pos) < 3:
+                raise TypeError("LongSeekDesigner(problem, spec) or (plant, controller, imax[, settle, robust, spec])")
+            if len(pos) > 5:
+                spec = pos[5]
+            problem = SeekProblem.from_options(*pos[:5], **options)
+        elif len(args) == 1 and spec is None:
+            spec = args[0]
+        elif args or options:
+            raise TypeError("LongSeekDesigner(problem, spec) takes no further arguments")
+        self.problem = p = problem
+        self.plant, self.controller = p.plant, p.controller
+        self.imax, self.settle, self.robust = p.imax_a, p.settle_band_track, p.robust
+        self.spec = spec if spec is not None else LongSeekSpec.from_plant(p.plant, p.imax_a)
+        self.fs, self.L = p.sample_rate_hz, int(p.controller.fast_multiple)
+        self.beta, self.gamma = p.band_margin, p.current_margin
+        self.hf_guard, self.hf_gain, self.hf_tol = p.hf_guard, p.hf_gain, p.hf_tol
+        self.solver = p.solver.qp_solver
+        if abs(p.plant.bias_a) >= self.gamma * self.imax:
+            raise LongSeekError(f"bias {p.plant.bias_a:g} A leaves no current for a seek at Imax {self.imax:g} A")
+        self.plants = p.plants()
+        self.tail = max(int(round(p.tail_s * self.fs)), 64)
+        self._short = short_designer
+        self._steps: dict = {}
+        self._maps, self._maps_h = None, 0
+        self._nominal = None
+
+    # ------------------------------------------------------------------ velocity steps
+    def _loop_maps(self, horizon):
+        from seekopt.design.qp import LoopMaps
+        if self._maps is None or self._maps_h < horizon:
+            h = max(horizon, int(1.5 * self._maps_h))
+            self._maps = [LoopMaps(p, self.controller, h) for p in self.plants]
+            self._maps_h = h
+        return self._maps
+
+    def _qp(self, nmax, nlo):
+        from seekopt.design.qp import hf_guard_matrix
+        H = nmax + self.tail
+        maps = self._loop_maps(H)
+        hf = None
+        if self.hf_guard:
+            lo, hi = self.hf_guard
+            hf = hf_guard_matrix(self.plant.k0, self.fs, self.L, H * self.L, lo * self.fs, hi * self.fs,
+                                 self.hf_gain, spacing_hz=max(self.fs / (2 * nmax), 50.0))[0]
+        return StepQP(maps, nmax, H, self.plant.k0, self.fs, self.plant.total_delay_s * self.fs, self.imax,
+                       self.settle, self.plant.bias_a, hf, nlo, self.problem.solver)
+
+    def velocity_step(self, velocity_track_s: float) -> VelocityStep:
+        """The shortest verified velocity step to ``velocity_track_s`` [track/s] (cached)."""
+        d = float(velocity_track_s) / self.fs
+        key = round(d, 12)
+        if key in self._steps:
+            return self._steps[key]
+        t0 = time.process_time()
+        c = self.plant.k0 / self.fs ** 2
+        gam = self.gamma - abs(self.plant.bias_a) / self.imax
+        n_rigid = int(math.ceil(d / (c * gam * self.imax) - 1e-9))
+        lo = max(n_rigid - 1, 1)
+        hf_tol = 0.5 * self.hf_tol if self.hf_guard else None
+        nmax, best, qp, n_solves = max(16, int(math.ceil(1.3 * n_rigid + 12))), None, None, 0
+        self._loop_maps(int(1.5 * nmax) + self.tail)     # once for the first two size classes
+        while nmax <= 4096:
+            qp = self._qp(nmax, lo)
+            sol = qp.solve(d, nmax, self.beta, self.gamma, hf_tol); n_solves += 1
+            if sol.success:
+                best, hi = sol, nmax
+                break
+            lo, nmax = nmax, int(math.ceil(1.5 * nmax))
+        if best is None:
+            raise LongSeekError(f"no velocity step to {velocity_track_s:g} track/s within 4096 samples")
+        while hi - lo > 1:                         # feasibility is monotone in N: bisection
+            mid = (lo + hi) // 2
+            s = qp.solve(d, mid, self.beta, self.gamma, hf_tol, x0=best.x); n_solves += 1
+            if s.success:
+                hi, best = mid, s
+            else:
+                lo = mid
+        u, w = qp.unpack(best.x, hi)
+        u = np.clip(u, -self.imax, self.imax)
+        u += (d / c - u.sum()) / hi                  # exact velocity (least-norm correction, ~1e-12 A)
+        r = qp.reference(u, w)
+        step = VelocityStep(u, r, d, self.fs, self.imax, self.settle, 0, 0,
+                            {"plant_hash": self.plant.hash(), "controller_hash": self.controller.hash(),
+                             "robust": self.robust.to_string() if self.robust else "none",
+                             "design_samples": hi, "qp_solves": n_solves})
+        step.settle_samples, step.min_coast_samples = self._arrival(step)
+        step.meta["design_cpu_s"] = time.process_time() - t0
+        self._steps[key] = step
+        return step
+
+    def _arrival(self, step: VelocityStep) -> tuple[int, int]:
+        """Settle of the step's error and the smallest spacing from which compositions are clean
+        (nominal linear loop: error ``e_A(k) - e_A(k-m)`` in the band after ``m + settle``, current within
+        ``(1 + gamma) / 2 Imax`` with the hold in both directions, for every ``m`` up to the length where ``e_A`` and the
+        currents have died out; ``m < N`` overlaps the steps)."""
+        from seekopt.design.metrics import settle_index
+        from seekopt.design.qp import LoopMaps
+        H = step.n + 4 * self.tail
+        if self._nominal is None or self._nominal.horizon < H:
+            self._nominal = LoopMaps(self.plant, self.controller, 2 * H)
+        mp = self._nominal
+        u, r = step.extended(H)
+        e = np.convolve(mp.y_u[:H], u)[:H] + np.convolve(mp.y_r[:H], r)[:H] - r
+        i = (np.stack([np.convolve(mp.i_u[:H, l], u)[:H] + np.convolve(mp.i_r[:H, l], r)[:H]
+                       for l in range(self.L)], axis=1))
+        S = max(settle_index(e, self.settle) or 0, step.n)
+        if np.max(np.abs(e[-self.tail:])) > 0.01 * self.settle:
+            raise LongSeekError(f"velocity step to {step.velocity_track_s:g} track/s: the loop has not caught "
+                                f"the ramp {H} samples later")
+        hold = abs(self.plant.bias_a)
+        ez, iz = np.r_[e, np.zeros(H)], np.vstack([i, np.zeros_like(i)])   # e_A, i_A = 0 beyond the horizon
+        if np.max(np.abs(i)) + hold > self.imax:
+            raise LongSeekError(f"velocity step to {step.velocity_track_s:g} track/s exceeds Imax on the design plant")
+        lim = 0.5 * (1 + self.gamma) * self.imax - hold    # compositions may use half the QP's current margin
+        m_ok = H
+        for m in range(H - 1, 0, -1):     # arrival error e_A(m + j) - e_A(j), scanned down in m (m < N: overlap)
+            k = settle_index(ez[m:m + H] - e, self.settle)
+            im = np.vstack([i[:m], iz[m:m + H] - i])
+            if k is None or k > S or np.max(np.abs(im)) > lim:
+                break
+            m_ok = m
+        return int(S), int(m_ok)
+
+    # ------------------------------------------------------------------ seeks
+    def coast_velocity(self) -> float | None:
+        return self.spec.vmax_track_s
+
+    def needs_coast(self, tracks: float) -> bool:
+        """True when a velocity limit is set and the seek is long enough to coast at it."""
+        v = self.spec.vmax_track_s
+        if v is None:
+            return False
+        a = self.plant.k0 * self.imax
+        if abs(tracks) < 0.9 * v * v / a:          # cheap: far below the bang-bang peak velocity
+            return False
+        return abs(tracks) >= self.velocity_step(v).min_tracks
+
+    def step_for(self, tracks: float) -> VelocityStep:
+        """The fastest velocity step (at most ``vmax``, 3 % apart) with which ``tracks`` coasts."""
+        K, v = abs(float(tracks)), self.spec.vmax_track_s
+        if v is None:
+            v = math.sqrt(K * self.plant.k0 * self.imax)
+        st = self.velocity_step(v)
+        if K >= st.min_tracks:
+            return st
+        v *= min(0.97, math.sqrt(K / st.min_tracks))    # min_tracks grows about as v^2
+        for _ in range(200):
+            st = self.velocity_step(v)
+            if K >= st.min_tracks:
+                return st
+            v *= 0.97
+        raise LongSeekError(f"no velocity step lets {K:g} tracks coast")
+
+    def short_designer(self):
+        if self._short is None:
+            from seekopt.design.designer import SeekDesigner
+            self._short = SeekDesigner(self.problem)
+        return self._short
+
+    def check_seek(self, tracks: float) -> float:
+        """Reject at once (before any QP) a seek longer than the stroke, or one that neither coasts nor fits the
+        rest-to-rest designer's horizon (:meth:`SeekDesigner.check_seek`).  Returns ``tracks`` as float."""
+        K = float(tracks)
+        if not math.isfinite(K) or K == 0:
+            raise LongSeekError(f"tracks must be a non-zero number, not {tracks!r}")
+        if self.spec.stroke_track is not None and abs(K) > self.spec.stroke_track:
+            raise LongSeekError(f"seek of {K:g} tracks is longer than the stroke ({self.spec.stroke_track:g} tracks)")
+        v = self.spec.vmax_track_s
+        if v is None or abs(K) < 0.9 * v * v / (self.plant.k0 * self.imax):
+            self.short_designer().check_seek(K)
+        return K
+
+    def design(self, tracks: float):
+        """Design the seek of ``tracks`` tracks -> :class:`seekopt.design.designer.DesignResult`.
+
+        With a coast: the composition of the velocity step at ``vmax`` (module notes), verified by
+        simulation; without: the rest-to-rest designer, its rigid peak velocity checked against ``vmax``.
+        """
+        from seekopt.design.designer import DesignError, DesignResult
+        from seekopt.design.metrics import evaluate_profile
+        from seekopt.design.profiles import Profile
+        K = self.check_seek(tracks)
+        t0 = time.process_time()
+        vmax = self.spec.vmax_track_s
+        if not self.needs_coast(K):
+            res = self.short_designer().design(K)
+            if vmax is None:
+                return res
+            vpk = rigid_peak_velocity(res.profile.current_a, self.plant.k0, self.fs)
+            res.profile.meta["peak_rigid_velocity_track_s"] = vpk
+            if vpk <= vmax * (1 + 1e-9):
+                return res
+            step = self.step_for(K)       # too fast and too short to coast at vmax: coast slower
+        else:
+            step = self.velocity_step(vmax)
+        u, r, m, s = step.compose(K)
+        meta = {"plant_hash": self.plant.hash(), "controller_hash": self.controller.hash(),
+                "design_objective": "long_seek/accelerate-coast-arrive", "coast_samples": m,
+                "coast_velocity_track_s": s * step.velocity_track_s, "vmax_track_s": vmax,
+                "step_samples": step.n, "robust": step.meta["robust"], "design_settle_samples": m + step.settle_samples}
+        prof = Profile(np.r_[u, 0.0], np.r_[r, K], self.fs, K, self.imax, self.settle, "long_seek",
+                       int(np.max(np.nonzero(u)[0]) + 1), meta)
+        metrics = evaluate_profile(self.plant, self.controller, prof, settle=self.settle)
+        if not metrics.peak_current_a <= self.imax * (1 + 1e-9):
+            raise DesignError(f"long seek of {K:g} tracks exceeds Imax in simulation ({metrics.peak_current_a:.4g} A)")
+        if not metrics.settle_time_s * self.fs <= m + step.settle_samples + 1 + 1e-9:
+            raise DesignError(f"long seek of {K:g} tracks does not settle by sample {m + step.settle_samples}")
+        prof.meta["design_status"] = "verified"
+        return DesignResult(prof, metrics, "verified", time.process_time() - t0, self.solver,
+                            "long_seek", settle_samples=m + step.settle_samples,
+                            n_solves=int(step.meta["qp_solves"]))
+
+
+def rigid_peak_velocity(current_a, k0: float, fs: float) -> float:
+    """Largest ``|rigid velocity|`` [track/s] of a feedforward (ZOH double integrator)."""
+    return float(np.max(np.abs(np.cumsum(current_a)))) * k0 / fs

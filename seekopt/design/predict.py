@@ -1,0 +1,117 @@
+"""Honest predictions: a profile played on every plant of a design's set.
+
+A plant of the set whose gain differs from the design plant's plays the profile's current scaled by
+its drive's gain calibration (``plant.meta["ff_scale"]``, see :mod:`seekopt.design.family`):
+:func:`played_on` for a simulation, :func:`scale_feedforward_maps` for the design's closed-loop maps.
+:func:`predict_on_set` measures the seek-settle time on every plant (the one simulator) and says which
+plant settles last and which one binds; ``seekopt design`` prints that and writes it into the
+profile's metadata.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from identification.model.plant import ModalPlant
+
+__all__ = ["set_label", "feedforward_scale", "calibrated", "played_on", "scale_feedforward_maps", "SetPrediction",
+           "predict_on_set"]
+
+
+def set_label(plant: ModalPlant) -> str:
+    """The plant's label in a robust set (``"nominal"`` if it has none)."""
+    return str((plant.meta or {}).get("set_label", "nominal"))
+
+
+def feedforward_scale(plant: ModalPlant) -> float:
+    """Factor the drive applies to a profile's current on ``plant`` (its gain calibration; 1 if unset)."""
+    return float((plant.meta or {}).get("ff_scale", 1.0))
+
+
+def calibrated(member: ModalPlant, design_k0: float, gain_estimate: float | None = None) -> ModalPlant:
+    """``member`` with the feedforward scale its drive applies: design gain / its gain estimate
+    (default its own ``k0``: a member identified from its own log knows its gain)."""
+    meta = dict(member.meta or {})
+    meta["ff_scale"] = float(design_k0) / float(gain_estimate or member.k0)
+    return member.copy(meta=meta)
+
+
+def played_on(profile, plant: ModalPlant):
+    """The profile as the drive plays it on ``plant``: current x :func:`feedforward_scale` (the
+    reference is unchanged)."""
+    s = feedforward_scale(plant)
+    if s == 1.0:
+        return profile
+    from seekopt.design.profiles import Profile
+    return Profile(np.asarray(profile.current_a) * s, profile.reference_track, profile.sample_rate_hz, profile.tracks,
+                   profile.imax_a, profile.settle_track, profile.kind, profile.seek_samples,
+                   dict(profile.meta, ff_scale=round(s, 6)))
+
+
+def scale_feedforward_maps(maps, plant: ModalPlant):
+    """Scale the feedforward columns of ``maps`` (:class:`seekopt.design.qp.LoopMaps` of ``plant``) by the
+    plant's :func:`feedforward_scale` (in place; returns ``maps``)."""
+    s = feedforward_scale(plant)
+    if s != 1.0:
+        maps.y_u = maps.y_u * s
+        maps.i_u = maps.i_u * s
+    return maps
+
+
+@dataclass
+class SetPrediction:
+    """A profile's predicted seek-settle times on every plant of a design's set.
+
+    Attributes
+    ----------
+    labels : list of str
+        ``set_label`` of each plant (nominal first).
+    metrics : list of SeekMetrics
+        Measured by the one simulator on each plant (effects included).
+    worst : int
+        Index of the plant that settles last (ties: the larger residual after the seek).
+    binding : int
+        Index of the plant closest to the settle band after the seek (largest peak ``|PES|`` from the
+        end of the seek on): the plant whose band constraint binds the design.
+    """
+
+    labels: list
+    metrics: list
+    worst: int
+    binding: int
+
+    @property
+    def nominal(self):
+        return self.metrics[0]
+
+    @property
+    def worst_metrics(self):
+        return self.metrics[self.worst]
+
+    def members(self) -> list:
+        """``(label, metrics)`` of the nominal plant and the family members."""
+        return [(lab, m) for lab, m in zip(self.labels, self.metrics) if lab == "nominal" or lab.startswith("member")]
+
+    def to_meta(self) -> dict:
+        ms = lambda m: round(m.settle_time_s * 1e3, 4)     # noqa: E731
+        return {"predicted_settle_nominal_ms": ms(self.nominal),
+                "predicted_settle_worst_ms": ms(self.worst_metrics),
+                "predicted_worst_plant": self.labels[self.worst],
+                "predicted_binding_plant": self.labels[self.binding],
+                "predicted_settle_members_ms": ";".join(f"{lab}={ms(m)}" for lab, m in self.members()),
+                "robust_set_size": len(self.labels)}
+
+
+def predict_on_set(plants: list, controller, profile, settle: float, k0_for_tbb: float | None = None,
+                   first=None) -> SetPrediction:
+    """Play ``profile`` on every plant of ``plants`` (:func:`seekopt.design.metrics.evaluate_profile`, the
+    current scaled by each plant's feedforward calibration, :func:`played_on`); ``first`` reuses the
+    metrics already measured on ``plants[0]``."""
+    from seekopt.design.metrics import evaluate_profile
+    ms = [first if (i == 0 and first is not None) else
+          evaluate_profile(p, controller, played_on(profile, p), settle=settle, k0_for_tbb=k0_for_tbb)
+          for i, p in enumerate(plants)]
+    worst = max(range(len(ms)), key=lambda i: (ms[i].settle_time_s, ms[i].peak_pes_after_track))
+    binding = max(range(len(ms)), key=lambda i: ms[i].peak_pes_after_track)
+    return SetPrediction([set_label(p) for p in plants], ms, worst, binding)

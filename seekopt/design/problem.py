@@ -1,0 +1,298 @@
+"""The seek-design problem as data (:class:`SeekProblem`, :class:`SolverSettings`), its JSON form,
+and the checks that need no optimiser (:func:`check_closed_loop`).
+
+The acados template pattern: the problem is a serialisable description; a
+:class:`seekopt.design.designer.SeekDesigner` is built once from it and then called for many seek
+lengths.  Nothing here builds a QP.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+
+import numpy as np
+
+from identification.model.plant import ModalPlant, atomic_write_text
+
+from seekopt.design.robust import RobustSpec
+from seekopt.design.solvers import QP_PLUGINS
+from seekopt.drive.loopcheck import closed_loop_poles
+
+__all__ = ["ProblemError", "SolverSettings", "SeekProblem", "check_closed_loop", "SIZE_CLASSES"]
+
+#: Seek-length classes [samples]: one QP structure (and solver) per class, built on first use.  Above
+#: 128 samples (seeks of about 2500 tracks and longer) the classes are 1/8 to 1/4 apart: the dense QP's
+#: cost grows steeply with its size (K = 10000: class 256 took 45-75 s per solve, 224 about 25 s).
+SIZE_CLASSES = (8, 16, 24, 32, 48, 64, 96, 128, 144, 160, 176, 192, 208, 224, 240, 256, 288, 320, 352, 384,
+                448, 512)
+
+
+class ProblemError(ValueError):
+    """A seek problem that cannot be designed for (bad numbers, unstable loop); one-line message."""
+
+
+@dataclass
+class SolverSettings:
+    """How the seek QPs are solved (not what is designed).
+
+    Parameters
+    ----------
+    qp_solver : str
+        Primary solver: a ``casadi.conic`` plugin (``daqp`` default) or ``ipopt``.
+    fallbacks : tuple of str
+        Solvers tried, in order, on the same QP when the primary ends in numerical trouble (daqp
+        cycling), an iteration limit or an answer that fails the constraint re-check -- before
+        anything is called infeasible (:class:`seekopt.design.solvers.SolverChain`).
+    options : dict
+        ``{solver name: plugin options}``.
+    max_samples : int
+        Longest seek considered [samples].
+    size_classes : tuple of int
+        QP size classes [samples] (:data:`SIZE_CLASSES`).
+    thin_above_samples, thin_stride : int
+        Classes above ``thin_above_samples`` carry the non-nominal plants' band rows on every
+        ``thin_stride``-th sample only (nominal rows and current rows are never thinned: thinning
+        current rows let set plants exceed Imax by 5-15 %; band stride 4 let the set's worst settle
+        1.3 ms later at K = 3000).
+    violation_tol : float
+        Largest relative constraint violation accepted from a solver's answer.
+    working_set : bool
+        Solve each QP on a working set of its rows, adding back violated rows
+        (:class:`seekopt.design.working_set.WorkingSetQP`; the same optimum on far fewer rows).  Off by
+        default: a reduced "infeasible" must be confirmed on the full QP (daqp has reported -1 on
+        reduced QPs that other solvers solve), which cancels the gain (``studies/design_speed.py``).
+    blas_threads : int or None
+        BLAS threads while designing (``threadpoolctl``; None: leave as is).  The design's matrices
+        are small: with 2 OpenBLAS threads on this 2-core machine three robust designs took 8-12 s
+        CPU, with 1 thread 1.3-1.6 s (same designs).
+    """
+
+    qp_solver: str = "daqp"
+    fallbacks: tuple = ("qpoases", "highs")
+    options: dict = field(default_factory=dict)
+    max_samples: int = 512
+    size_classes: tuple = SIZE_CLASSES
+    thin_above_samples: int = 128
+    thin_stride: int = 2
+    violation_tol: float = 1e-3
+    working_set: bool = False
+    blas_threads: int | None = 1
+
+    def __post_init__(self):
+        self.fallbacks = tuple(self.fallbacks)
+        self.size_classes = tuple(int(c) for c in self.size_classes)
+        for name in (self.qp_solver,) + self.fallbacks:
+            if name != "ipopt" and name not in QP_PLUGINS:
+                raise ProblemError(f"unknown QP solver {name!r} (choose from ipopt, {', '.join(QP_PLUGINS)})")
+        if self.max_samples < 2 or self.thin_stride < 1 or not self.violation_tol > 0:
+            raise ProblemError("solver settings: max_samples >= 2, thin_stride >= 1, violation_tol > 0 required")
+
+    @property
+    def chain(self) -> tuple:
+        """Primary, then fallbacks (duplicates dropped)."""
+        return tuple(dict.fromkeys((self.qp_solver,) + self.fallbacks))
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["fallbacks"], d["size_classes"] = list(self.fallbacks), list(self.size_classes)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "SolverSettings":
+        return cls(**d)
+
+
+def _positive(name, v):
+    if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+        raise ProblemError(f"{name} must be a positive number (got {v!r})")
+    return float(v)
+
+
+@dataclass(eq=False)
+class SeekProblem:
+    """One seek-design problem: the drive, the limits and what "settled" means.
+
+    Parameters
+    ----------
+    plant : ModalPlant
+        Identified (design) plant; its linear part is designed for, the full plant checked.
+    controller : Controller
+        The drive's feedback controller (servo rate ``controller.sample_rate_hz``).
+    imax_a : float
+        Current limit [A] on the total current (feedforward + feedback + hold, every sub-step).
+    settle_band_track : float
+        Settle band [track] (``|PES| <= band`` from the settle time on).
+    band_margin : float
+        ``beta``: design band as a fraction of the settle band (0.8 keeps 20 % for what the robust
+        set does not cover; at K = 200 on the identified plant 0.7 -> 2.12 T_bb, 0.8 -> 1.93, 0.9 -> 1.80).
+    current_margin : float
+        ``gamma``: design current limit as a fraction of ``imax_a``.
+    robust : RobustSpec, Drift or None
+        Plant uncertainty (None: nominal plant only): a :class:`seekopt.design.family.Drift` (drift in
+        physical terms, ranges from the data) or a :class:`RobustSpec` (per-mode box).
+    family : list of ModalPlant
+        Further plants of the drive's family (other temperatures, heads, zones) the design must hold
+        (worst case); ``plant`` is the nominal member.
+    slew_a_per_s : float or None
+        Feedforward slew-rate limit [A/s].
+    reference : {"free", "model", "rigid"}
+        Reference designed jointly (ERRATA item 6), or the response of the plant model (modes
+        included) or of the rigid body to the feedforward (the paper).
+    tail_s : float
+        Time after the seek over which the band is enforced in the QP [s] (at least 64 samples;
+        the simulator check runs longer).
+    hf_guard : (float, float) or None
+        Band of unmodelled modes as fractions of the servo rate (identification does not see modes
+        near and above Nyquist); ``hf_gain`` their gain relative to the rigid body, ``hf_tol`` the
+        allowed residual per mode as a fraction of the settle band.
+    guard_notch_depth_db : float or None
+        The guard also covers the controller's notches and filter zeros at least this deep
+        (:func:`seekopt.design.guard.controller_notches`; None: not).
+    guard_bands_hz : tuple
+        Further guard bands ``(lo_hz, hi_hz)`` or ``(lo_hz, hi_hz, gain)``.
+    check_robust : bool
+        Also simulate each design on every plant of the robust set.
+    solver : SolverSettings
+    """
+
+    plant: ModalPlant
+    controller: object
+    imax_a: float
+    settle_band_track: float = 0.1
+    band_margin: float = 0.8
+    current_margin: float = 0.97
+    robust: RobustSpec | None = None
+    family: list = field(default_factory=list)
+    slew_a_per_s: float | None = None
+    reference: str = "free"
+    tail_s: float = 0.008
+    hf_guard: tuple | None = (0.45, 0.65)
+    hf_gain: float = 1.0
+    hf_tol: float = 0.1
+    guard_notch_depth_db: float | None = 6.0
+    guard_bands_hz: tuple = ()
+    check_robust: bool = False
+    solver: SolverSettings = field(default_factory=SolverSettings)
+
+    def __post_init__(self):
+        self.imax_a = _positive("imax", self.imax_a)
+        self.settle_band_track = _positive("settle band", self.settle_band_track)
+        for name in ("band_margin", "current_margin"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and 0 < v <= 1):
+                raise ProblemError(f"{name} must be in (0, 1] (got {v!r})")
+        if self.reference not in ("free", "model", "rigid"):
+            raise ProblemError(f"reference must be 'free', 'model' or 'rigid', not {self.reference!r}")
+        if isinstance(self.robust, str):
+            self.robust = None if self.robust.lower() == "none" else RobustSpec.from_string(self.robust)
+        self.family = list(self.family or [])
+        if self.slew_a_per_s is not None:
+            self.slew_a_per_s = _positive("slew", self.slew_a_per_s)
+        if self.hf_guard is not None:
+            self.hf_guard = tuple(float(f) for f in self.hf_guard)
+        self.guard_bands_hz = tuple(tuple(float(v) for v in b) for b in (self.guard_bands_hz or ()))
+        self.tail_s = _positive("tail_s", self.tail_s)
+        if isinstance(self.solver, dict):
+            self.solver = SolverSettings.from_dict(self.solver)
+
+    # ------------------------------------------------------------------ derived
+    @property
+    def sample_rate_hz(self) -> float:
+        return float(self.controller.sample_rate_hz)
+
+    def plants(self) -> list:
+        """The design's plant set: nominal first, then the family members and the robust set's vertices
+        (a :class:`~seekopt.design.family.Drift` places the members itself)."""
+        from seekopt.design.family import label_set
+        if self.robust is None:
+            return label_set([self.plant], self.family)
+        if getattr(self.robust, "to_dict", lambda: {})().get("kind") == "drift":
+            return self.robust.plants(self.plant, self.family)
+        return label_set(self.robust.plants(self.plant), self.family)
+
+    # ------------------------------------------------------------------ JSON
+    def to_dict(self) -> dict:
+        """Plain data: ``plant`` and ``controller`` as their own JSON dicts."""
+        d = {f.name: getattr(self, f.name) for f in fields(self)}
+        d["plant"], d["controller"] = self.plant.to_dict(), self.controller.to_dict()
+        d["robust"] = self.robust.to_dict() if self.robust else None
+        d["family"] = [p.to_dict() for p in self.family]
+        d["hf_guard"] = list(self.hf_guard) if self.hf_guard is not None else None
+        d["guard_bands_hz"] = [list(b) for b in self.guard_bands_hz]
+        d["solver"] = self.solver.to_dict()
+        return {"schema": 1, **d}
+
+    @classmethod
+    def from_dict(cls, d: dict, source: str = "problem") -> "SeekProblem":
+        from seekopt.drive.controller import Controller
+        d = dict(d)
+        if d.pop("schema", 1) != 1:
+            raise ProblemError(f"{source}: unsupported seek-problem schema")
+        try:
+            d["plant"] = ModalPlant.from_dict(d["plant"], source=f"{source}: plant")
+            d["controller"] = Controller.from_json(d["controller"])
+            d["robust"] = _robust_from_dict(d["robust"]) if d.get("robust") else None
+            d["family"] = [ModalPlant.from_dict(p, source=f"{source}: family member {i}")
+                           for i, p in enumerate(d.get("family") or [], 1)]
+            d["solver"] = SolverSettings.from_dict(d.get("solver") or {})
+            return cls(**d)
+        except (KeyError, TypeError) as exc:
+            raise ProblemError(f"{source}: not a valid seek problem ({type(exc).__name__}: {exc})") from None
+
+    def to_json(self, path: str | Path | None = None) -> str:
+        text = json.dumps(self.to_dict(), indent=1)
+        if path is not None:
+            atomic_write_text(path, text)
+        return text
+
+    @classmethod
+    def from_json(cls, text_or_path) -> "SeekProblem":
+        """From a JSON string or a file path."""
+        src = "problem"
+        if isinstance(text_or_path, Path) or not str(text_or_path).lstrip().startswith("{"):
+            src = str(text_or_path)
+            text_or_path = Path(text_or_path).read_text()
+        try:
+            d = json.loads(text_or_path)
+        except json.JSONDecodeError as exc:
+            raise ProblemError(f"{src}: not valid JSON (line {exc.lineno})") from None
+        return cls.from_dict(d, source=src)
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, SeekProblem) and self.to_dict() == other.to_dict()
+
+    # ------------------------------------------------------------------ legacy keywords
+    @classmethod
+    def from_options(cls, plant, controller, imax, settle=0.1, robust=None, *, solver="daqp", solver_options=None,
+                     max_samples=512, fallbacks=None, **kw) -> "SeekProblem":
+        """The former ``SeekDesigner(plant, controller, imax, settle, robust, **options)`` keywords."""
+        ss = {"qp_solver": solver, "options": {solver: solver_options} if solver_options else {},
+              "max_samples": max_samples}
+        if fallbacks is not None:
+            ss["fallbacks"] = tuple(fallbacks)
+        return cls(plant, controller, imax, settle, robust=robust, solver=SolverSettings(**ss), **kw)
+
+
+def _robust_from_dict(d: dict):
+    """A :class:`RobustSpec` or (``"kind": "drift"``) a :class:`seekopt.design.family.Drift`."""
+    if d.get("kind") == "drift":
+        from seekopt.design.family import Drift
+        return Drift.from_dict(d)
+    return RobustSpec.from_dict(d)
+
+
+def check_closed_loop(plant: ModalPlant, controller, margin: float = 1e-9) -> float:
+    """Spectral radius of the closed loop of ``plant``'s linear part under ``controller`` (servo rate):
+    the poles of :func:`seekopt.drive.loopcheck.closed_loop_poles` (the plant discretised as the
+    simulator runs it, the controller lifted to the servo rate).  Raises :class:`ProblemError` (one
+    line) when a pole is on or outside the unit circle."""
+    poles = closed_loop_poles(plant, controller)
+    rho = float(np.max(np.abs(poles))) if poles.size else 0.0
+    if not math.isfinite(rho) or rho >= 1.0 - margin:
+        p = poles[int(np.argmax(np.abs(poles)))] if poles.size else complex("nan")
+        f = abs(np.angle(p)) * float(controller.sample_rate_hz) / (2 * math.pi)
+        raise ProblemError(f"closed loop of the plant and controller {getattr(controller, 'name', '')!r} is "
+                           f"unstable: pole |z| = {rho:.6g} at {f:.0f} Hz")
+    return rho

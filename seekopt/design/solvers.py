@@ -1,0 +1,309 @@
+"""Dense QP solvers for seek design, with every solver status classified.
+
+All solvers take ``min 1/2 x'Hx + g'x  s.t. lba <= A x <= uba, lbx <= x <= ubx`` with ``H`` and
+``A`` as :class:`casadi.DM` (converted once by the caller, never per solve):
+
+* :class:`ConicQP` -- ``casadi.conic`` with a QP plugin (``daqp`` default; ``qpoases``, ``highs``,
+  ``osqp``, ``proxqp``, ``qrqp`` accepted), built once for a fixed size;
+* :class:`IpoptQP` -- the same problem as an ``Opti`` + Ipopt NLP (``hessian_constant``,
+  ``jac_c_constant``, ``jac_d_constant`` = yes) exported once with ``opti.to_function``;
+* :class:`SolverChain` -- a primary solver and fallbacks, built lazily: a solve that ends in
+  numerical trouble (daqp cycling, status -2), an iteration limit or an answer that fails the
+  caller's constraint re-check is retried with the next solver before anything is called
+  infeasible.
+
+Every raw status is mapped to one :class:`QPStatus` (:func:`classify_status`): ``optimal``,
+``infeasible`` (the solver proved it), ``numerical`` (trouble: proves nothing) or
+``iteration_limit`` (proves nothing).  A solution is only used when it is ``optimal``.
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+from enum import Enum
+
+import casadi as ca
+import numpy as np
+
+__all__ = ["QPStatus", "classify_status", "QPSolution", "ConicQP", "IpoptQP", "make_qp_solver", "SolverChain",
+           "QP_PLUGINS", "dm"]
+
+#: ``casadi.conic`` plugins the designer accepts.
+QP_PLUGINS = ("daqp", "qpoases", "highs", "osqp", "proxqp", "qrqp")
+
+
+class QPStatus(str, Enum):
+    """Outcome of one QP solve."""
+
+    OPTIMAL = "optimal"
+    INFEASIBLE = "infeasible"
+    NUMERICAL = "numerical"
+    ITERATION_LIMIT = "iteration_limit"
+
+
+#: daqp exit flags (daqp ``api.h``): 1 optimal, 2 soft optimal, -1 infeasible, -2 cycling,
+#: -3 unbounded, -4 iteration limit, -5 non-convex, -6 overdetermined initial active set.
+_DAQP = {1: QPStatus.OPTIMAL, 2: QPStatus.OPTIMAL, -1: QPStatus.INFEASIBLE, -2: QPStatus.NUMERICAL,
+         -3: QPStatus.NUMERICAL, -4: QPStatus.ITERATION_LIMIT, -5: QPStatus.NUMERICAL, -6: QPStatus.NUMERICAL}
+#: Text statuses of the other solvers (lower case, substring match, first hit wins).
+_TEXT = (("primal infeasible", QPStatus.INFEASIBLE), ("infeasib", QPStatus.INFEASIBLE),
+         ("max_iter", QPStatus.ITERATION_LIMIT), ("maximum iterations", QPStatus.ITERATION_LIMIT),
+         ("iteration limit", QPStatus.ITERATION_LIMIT), ("maximum number of working set", QPStatus.ITERATION_LIMIT),
+         ("maximum_iterations", QPStatus.ITERATION_LIMIT), ("time limit", QPStatus.ITERATION_LIMIT))
+
+
+def classify_status(solver: str, raw, success: bool) -> QPStatus:
+    """Map a solver's raw ``return_status`` (and casadi's ``success``) to a :class:`QPStatus`.
+
+    daqp reports an integer exit flag (see ``_DAQP``; -2 is cycling: numerical trouble, not
+    infeasibility).  The other plugins report text: infeasibility only when the text says so,
+    iteration and time limits as ``iteration_limit``; anything else that is not a success is
+    ``numerical``.  Unknown statuses are never taken as proof of infeasibility.
+    """
+    text = str(raw).strip()
+    if solver == "daqp":
+        try:
+            return _DAQP.get(int(float(text)), QPStatus.NUMERICAL)
+        except ValueError:
+            pass
+    if success:
+        return QPStatus.OPTIMAL
+    low = text.lower()
+    if "inaccurate" in low:
+        return QPStatus.NUMERICAL
+    for key, status in _TEXT:
+        if key in low:
+            return status
+    return QPStatus.NUMERICAL
+
+
+@contextlib.contextmanager
+def _quiet_stdout(active: bool = True):
+    """Silence the C-level stdout (file descriptor 1) inside the block."""
+    if not active:
+        yield
+        return
+    sys.stdout.flush()
+    try:
+        saved = os.dup(1)
+    except OSError:         # no file descriptor 1 (embedded use): nothing to silence
+        yield
+        return
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 1)
+            yield
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
+def dm(a: np.ndarray) -> ca.DM:
+    """numpy -> casadi.DM (dense).  Slow for big arrays (~0.1 s per million entries): do it once."""
+    a = np.asarray(a, dtype=float)
+    return ca.DM(a if a.ndim == 2 else a.reshape(-1, 1))
+
+
+@dataclass
+class QPSolution:
+    """Result of one QP solve: ``x``, multipliers, raw status, wall and CPU time [s].
+
+    ``outcome`` is the classified :class:`QPStatus` (derived from ``success``/``status`` when not
+    given); ``solver`` the solver that produced it; ``attempts`` the ``(solver, raw status,
+    outcome)`` of every solve a :class:`SolverChain` made for this answer.
+    """
+
+    x: np.ndarray
+    lam_a: np.ndarray
+    lam_x: np.ndarray
+    success: bool
+    status: str
+    solve_time_s: float
+    cpu_time_s: float
+    outcome: QPStatus | None = None
+    solver: str = ""
+    attempts: list = field(default_factory=list)
+
+    def __post_init__(self):
+        if self.outcome is None:          # raw flags without a solver name: daqp's integer flags
+            name = self.solver or ("daqp" if self.status.strip().lstrip("-").isdigit() else "")
+            self.outcome = classify_status(name, self.status, self.success)
+        if self.outcome is not QPStatus.OPTIMAL:
+            self.success = False
+        elif not self.success:
+            self.outcome = QPStatus.NUMERICAL
+
+    @property
+    def infeasible(self) -> bool:
+        """The solver proved the problem infeasible."""
+        return self.outcome is QPStatus.INFEASIBLE
+
+
+def _nan_safe(a, n):
+    a = np.asarray(a, dtype=float).ravel()
+    return a if a.size == n else np.full(n, np.nan)
+
+
+class ConicQP:
+    """``casadi.conic`` for a dense QP of fixed size ``(n, m)``, built once and reused.
+
+    Parameters
+    ----------
+    n, m : int
+        Variables and linear constraints.
+    plugin : str
+        ``daqp`` (default), ``qpoases``, ``highs``, ``osqp``, ``proxqp``, ``qrqp``.
+    options : dict, optional
+        Plugin options (merged over quiet defaults).
+    """
+
+    def __init__(self, n: int, m: int, plugin: str = "daqp", options: dict | None = None):
+        if plugin not in QP_PLUGINS:
+            raise ValueError(f"unknown QP plugin {plugin!r} (choose from {', '.join(QP_PLUGINS)})")
+        self.n, self.m, self.plugin = int(n), int(m), plugin
+        opts = {"error_on_fail": False, "verbose": False}
+        quiet = {"qpoases": {"printLevel": "none"}, "highs": {"highs": {"output_flag": False}},
+                 "osqp": {"osqp": {"verbose": False, "eps_abs": 1e-7, "eps_rel": 1e-7, "max_iter": 50000,
+                                   "polishing": True}},
+                 "proxqp": {"proxqp": {"backend": "dense", "eps_abs": 1e-9}},
+                 "qrqp": {"print_iter": False, "print_header": False, "print_info": False},
+                 "daqp": {"daqp": {"iter_limit": 5000, "primal_tol": 1e-9}}}
+        opts.update(quiet.get(plugin, {}))
+        opts.update(options or {})
+        sp = {"h": ca.Sparsity.dense(self.n, self.n), "a": ca.Sparsity.dense(self.m, self.n)}
+        with _quiet_stdout(plugin == "qpoases"):      # qpOASES prints its licence banner at construction
+            self._solver = ca.conic(f"seek_qp_{plugin}", plugin, sp, opts)
+        self.name = plugin
+
+    def solve(self, H: ca.DM, g, A: ca.DM, lba, uba, lbx, ubx, x0=None, lam_a0=None, lam_x0=None) -> QPSolution:
+        """Solve with numeric data (``H``, ``A`` as DM); ``x0``/``lam_*0`` warm-start plugins that use them."""
+        args = dict(h=H, g=g, a=A, lba=lba, uba=uba, lbx=lbx, ubx=ubx)
+        if x0 is not None:
+            args["x0"] = x0
+        if lam_a0 is not None:
+            args["lam_a0"] = lam_a0
+        if lam_x0 is not None:
+            args["lam_x0"] = lam_x0
+        t0, c0 = time.perf_counter(), time.process_time()
+        try:
+            res = self._solver(**args)
+            st = self._solver.stats()
+            raw, ok = st.get("return_status", st.get("unified_return_status", "?")), bool(st.get("success", False))
+        except RuntimeError as exc:       # ill-posed data or a solver crash: numerical trouble, not a proof
+            res, raw, ok = {"x": np.nan, "lam_a": np.nan, "lam_x": np.nan}, f"error: {str(exc).splitlines()[-1]}", False
+        dt, dc = time.perf_counter() - t0, time.process_time() - c0
+        x = _nan_safe(res["x"], self.n)
+        ok = ok and bool(np.all(np.isfinite(x)))
+        outcome = classify_status(self.plugin, raw, ok)
+        if outcome is QPStatus.OPTIMAL and not np.all(np.isfinite(x)):
+            outcome = QPStatus.NUMERICAL
+        return QPSolution(x, _nan_safe(res["lam_a"], self.m), _nan_safe(res["lam_x"], self.n),
+                          outcome is QPStatus.OPTIMAL, str(raw), dt, dc, outcome, self.plugin)
+
+
+class IpoptQP:
+    """The same dense QP as an ``Opti`` problem solved by Ipopt, exported once with
+    ``opti.to_function`` (the general NLP path; QP structure declared to Ipopt)."""
+
+    def __init__(self, n: int, m: int, options: dict | None = None):
+        self.n, self.m, self.name = int(n), int(m), "ipopt"
+        opti = ca.Opti()
+        x = opti.variable(self.n)
+        H, g = opti.parameter(self.n, self.n), opti.parameter(self.n)
+        A = opti.parameter(self.m, self.n)
+        lba, uba = opti.parameter(self.m), opti.parameter(self.m)
+        lbx, ubx = opti.parameter(self.n), opti.parameter(self.n)
+        opti.minimize(0.5 * ca.bilin(H, x, x) + ca.dot(g, x))
+        opti.subject_to(opti.bounded(lba, A @ x, uba))
+        opti.subject_to(opti.bounded(lbx, x, ubx))
+        ipopt = {"print_level": 0, "sb": "yes", "hessian_constant": "yes", "jac_c_constant": "yes",
+                 "jac_d_constant": "yes", "tol": 1e-9, "max_iter": 500, "mu_strategy": "adaptive"}
+        ipopt.update(options or {})
+        opti.solver("ipopt", {"print_time": False, "error_on_fail": False}, ipopt)
+        self._f = opti.to_function("seek_qp_ipopt", [H, g, A, lba, uba, lbx, ubx, x], [x, opti.lam_g])
+
+    def solve(self, H, g, A, lba, uba, lbx, ubx, x0=None, lam_a0=None, lam_x0=None) -> QPSolution:
+        lbx, ubx = np.asarray(lbx, float), np.asarray(ubx, float)
+        x0 = np.clip(np.zeros(self.n) if x0 is None else np.asarray(x0, float), lbx, ubx)
+        lba, uba = np.asarray(lba, float), np.asarray(uba, float)
+        t0, c0 = time.perf_counter(), time.process_time()
+        try:
+            x, lam = self._f(H, g, A, lba, uba, lbx, ubx, x0)
+            st = self._f.stats()
+            status = str(st.get("return_status", "?"))
+            ok = bool(st.get("success", False))
+        except RuntimeError as exc:  # ill-posed data (e.g. lb > ub)
+            x, lam, status, ok = np.full(self.n, np.nan), np.full(2 * self.m, np.nan), str(exc)[:80], False
+        dt, dc = time.perf_counter() - t0, time.process_time() - c0
+        x = _nan_safe(x, self.n)
+        lam = np.asarray(lam, float).ravel()
+        ok = ok and bool(np.all(np.isfinite(x)))
+        return QPSolution(x, lam[:self.m] if lam.size >= self.m else np.full(self.m, np.nan),
+                          np.zeros(self.n), ok, status, dt, dc, classify_status("ipopt", status, ok), "ipopt")
+
+
+def make_qp_solver(n: int, m: int, solver: str = "daqp", options: dict | None = None):
+    """:class:`IpoptQP` for ``solver="ipopt"``, else :class:`ConicQP` with that plugin."""
+    return IpoptQP(n, m, options) if solver == "ipopt" else ConicQP(n, m, solver, options)
+
+
+class SolverChain:
+    """A primary QP solver and fallbacks for one problem size, each built on first use.
+
+    :meth:`solve` returns the first ``optimal`` answer that passes ``check`` (the caller's
+    constraint re-check: a status is never trusted alone); an answer that fails it counts as
+    ``numerical``.  ``infeasible`` from a solver ends the chain (the solver proved it); any other
+    outcome (``numerical``, ``iteration_limit``) moves on to the next solver.  When every solver
+    has failed without a proof, the answer is the last one, with its outcome (never
+    ``infeasible``).
+
+    Parameters
+    ----------
+    n, m : int
+    names : sequence of str
+        Primary first, e.g. ``("daqp", "qpoases")``.
+    options : dict, optional
+        ``{solver name: options}``.
+    builds : callable, optional
+        Called with the solver name at each construction (build counting by the owner).
+    """
+
+    def __init__(self, n: int, m: int, names, options: dict | None = None, builds=None):
+        self.n, self.m = int(n), int(m)
+        self.names = tuple(dict.fromkeys(names))
+        self.options = options or {}
+        self._solvers: dict = {}
+        self._on_build = builds
+        self.get(self.names[0])          # the primary is built with the structure
+
+    @property
+    def name(self) -> str:
+        return self.names[0]
+
+    def get(self, name: str):
+        if name not in self._solvers:
+            self._solvers[name] = make_qp_solver(self.n, self.m, name, self.options.get(name))
+            if self._on_build is not None:
+                self._on_build(name)
+        return self._solvers[name]
+
+    def solve(self, *data, x0=None, check=None, start: int = 0) -> QPSolution:
+        """Solve ``data = (H, g, A, lba, uba, lbx, ubx)``; ``x0`` warm-starts the first solver only;
+        ``check(x)`` returns a note (str) when ``x`` fails the caller's re-check, else ''; ``start``
+        skips the first solvers of the chain (a second opinion)."""
+        attempts, sol, wall, cpu = [], None, 0.0, 0.0
+        for i, name in enumerate(self.names[start:]):
+            sol = self.get(name).solve(*data, x0=x0 if i == 0 else None)
+            wall, cpu = wall + sol.solve_time_s, cpu + sol.cpu_time_s
+            if sol.outcome is QPStatus.OPTIMAL and check is not None:
+                note = check(sol.x)
+                if note:
+                    sol.success, sol.outcome, sol.status = False, QPStatus.NUMERICAL, f"{sol.status}; {note}"
+            attempts.append((name, sol.status, sol.outcome.value))
+            if sol.outcome in (QPStatus.OPTIMAL, QPStatus.INFEASIBLE):
+                break
+        sol.attempts, sol.solve_time_s, sol.cpu_time_s = attempts, wall, cpu
+        return sol
