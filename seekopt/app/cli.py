@@ -219,6 +219,11 @@ def _plant_family(paths, controller_path):
     return plants[0], plants[1:], controller, [Path(p).name for p in paths]
 
 
+def _first(paths) -> str:
+    """The first ``--plant`` path as the user gave it (for one-line errors)."""
+    return str(paths[0] if isinstance(paths, (list, tuple)) else paths)
+
+
 def _robust_choice(args, nominal=None):
     """The design's uncertainty from ``--drift`` (physical drift, repeatable) or ``--robust``: a
     :class:`~seekopt.design.family.Drift`, a :class:`~seekopt.design.robust.RobustSpec` or None."""
@@ -427,7 +432,7 @@ def cmd_design(args) -> int:
     robust = _robust_choice(args, plant)
     from seekopt.design.feasibility import StartError, resolve_start
     try:        # start track and direction: never outside the range the plant's effects were fitted on
-        start = resolve_start(plant, args.tracks, args.start_track, source=names[0])
+        start = resolve_start(plant, args.tracks, args.start_track, source=_first(args.plant))
     except StartError as exc:
         raise UsageError(str(exc)) from None
     from seekopt.design.nlp import needs_nlp
@@ -517,7 +522,7 @@ def cmd_bench(args) -> int:
         from seekopt.design.feasibility import StartError, resolve_start
         from seekopt.evaluate.effect_bench import run_effect_bench
         try:
-            start = resolve_start(plant, args.tracks, args.start_track, source=names[0])
+            start = resolve_start(plant, args.tracks, args.start_track, source=_first(args.plant))
         except StartError as exc:
             raise UsageError(str(exc)) from None
         res = run_effect_bench(plant, controller, args.tracks, args.imax, args.settle, start_track=start,

@@ -2,14 +2,14 @@
 
 When the plant carries input or force effects (torque constant ``Kt(x)``, position bias, friction,
 saturation; :mod:`identification.model.effects`), the closed loop is no longer a convolution and
-the linear designer (:mod:`seekopt.design.ocp`) designs for another drive.  The
+the linear designer (:mod:`seekopt.design.designer`) designs for another drive.  The
 :class:`EffectAwareDesigner` designs for the plant as it is:
 
 1. the start track (:func:`seekopt.design.feasibility.resolve_start`; never outside the range the
    effects were fitted on) and the hold check at the target: when the drive's feedback cannot hold
    the band there whatever the feedforward (a friction limit cycle, run-out), :class:`DesignUnholdable`
    names the effect and the residual;
-2. the linear design (QP, :class:`~seekopt.design.ocp.SeekDesigner` on ``plant.linear_part()``, the
+2. the linear design (QP, :class:`~seekopt.design.designer.SeekDesigner` on ``plant.linear_part()``, the
    same robust set) as the warm start and the first seek length;
 3. a search on the seek length ``N`` (secant steps on the NLP's worst residual, bisection) with the
    NLP of :mod:`seekopt.design.nlp_problem` at each length: the full closed loop on CasADi symbols,
@@ -32,13 +32,14 @@ import numpy as np
 
 from identification.model.plant import ModalPlant
 
-import seekopt.design.qp as _qp
+from seekopt.design import guard as _guard, qp as _qp
+from seekopt.design.designer import DesignResult, SeekDesigner
 from seekopt.design.feasibility import (hold_check, hold_current, nonlinear_effects, play_seek,
                                         resolve_start)
 from seekopt.design.metrics import SeekMetrics
 from seekopt.design.nlp_problem import (BUILD_COUNT, NLPSettings, NLPSolve, RobustSpread, SeekNLP,
                                         close_sample, closed_loop_sample)
-from seekopt.design.ocp import SIZE_CLASSES, DesignResult, SeekDesigner
+from seekopt.design.problem import SeekProblem
 from seekopt.design.profiles import Profile
 
 __all__ = ["NLPSettings", "NLPDesignError", "DesignUnholdable", "NLPSolve", "NLPDesignResult",
@@ -96,23 +97,29 @@ class EffectAwareDesigner:
     controller : Controller
     imax, settle : float
         Current limit [A] (total current, every sub-step) and settle band [track].
-    robust : RobustSpec, optional
-        Robust set (as :class:`~seekopt.design.ocp.SeekDesigner`): of the linear warm start and,
-        as a first-order envelope around the full-plant trajectory, of the NLP.
+    robust : Drift, RobustSpec or None
+        The design's uncertainty (as :class:`~seekopt.design.problem.SeekProblem`): the linear warm
+        start holds the band on its set, the NLP on the same set to first order around the full-plant
+        trajectory (:class:`~seekopt.design.nlp_problem.RobustSpread`).
     settings : NLPSettings, optional
+    family : list of ModalPlant, optional
+        Further members of the drive's family (as ``SeekProblem.family``).
     """
 
     def __init__(self, plant: ModalPlant, controller, imax: float, settle: float = 0.1, robust=None,
-                 settings: NLPSettings | None = None):
+                 settings: NLPSettings | None = None, family=None):
         self.plant, self.controller = plant, controller
         self.imax, self.settle = float(imax), float(settle)
         self.settings = settings or NLPSettings()
         self.fs, self.L = float(controller.sample_rate_hz), int(controller.fast_multiple)
         self.nlp_plant = plant.copy(effects=[e for e in plant.effects if e.kind != "output"])
         self.robust = robust
-        self.linear = SeekDesigner(plant.linear_part(), controller, imax, settle, robust,
+        self.problem = SeekProblem(plant.linear_part(), controller, imax, settle,
                                    band_margin=self.settings.band_margin,
-                                   current_margin=self.settings.current_margin)
+                                   current_margin=self.settings.current_margin, robust=robust,
+                                   family=[f.linear_part() for f in (family or [])])
+        self.linear = SeekDesigner(self.problem)
+        self.sizes = self.problem.solver.size_classes
         self.tail = max(int(round(self.settings.tail_s * self.fs)), 16)
         self._nlps: dict = {}
         self._spreads: dict = {}
@@ -120,19 +127,27 @@ class EffectAwareDesigner:
 
     def _nlp(self, n: int):
         """``(SeekNLP, RobustSpread or None)`` of the size class of ``n`` samples (built on first use)."""
-        c = next((c for c in SIZE_CLASSES if c >= n), None)
+        c = next((c for c in self.sizes if c >= n), None)
         if c is None or c > self.settings.max_samples:
             raise NLPDesignError(f"seek of {n} samples is longer than the largest NLP "
                                  f"({self.settings.max_samples} samples)")
         if c not in self._nlps:
             H = c + self.tail
+            if self._maps is None or self._maps[0].horizon < H + 1:
+                self._maps = [_qp.LoopMaps(p, self.controller, H + 1 + self.tail) for p in self.linear.plants]
             if len(self.linear.plants) > 1:
-                if self._maps is None or self._maps[0].horizon < H + 1:
-                    self._maps = [_qp.LoopMaps(p, self.controller, H + 1 + self.tail) for p in self.linear.plants]
-                prev = max([k for k in SIZE_CLASSES if k < c], default=0)
+                prev = max([k for k in self.sizes if k < c], default=0)
                 self._spreads[c] = RobustSpread(self._maps, c, H, self.settle, nmax_prev=prev)
+            guard = None
+            if self.linear.guard_bands:         # the linear designer's unmodelled-mode guard, same bands
+                dfg = _guard.grid_spacing(self.fs, c)
+                guard = _guard.guard_rows(self.linear.guard_bands, self.plant.k0, self.fs, self.L, H * self.L,
+                                          spacing_hz=dfg, curve=self.linear.guard_curve,
+                                          extra_hz=_guard.loop_peaks(self._maps[0], self.linear.guard_bands,
+                                                                     self.fs, dfg))
             self._nlps[c] = SeekNLP(self.nlp_plant, self.controller, c, self.tail, self.settle, self.settings,
-                                    spread=self._spreads.get(c))
+                                    spread=self._spreads.get(c), guard=None if guard is None else guard[0],
+                                    guard_tol=self.problem.hf_tol)
         return self._nlps[c], self._spreads.get(c)
 
     def design(self, tracks: float, start_track: float | None = None, progress=None,
@@ -200,7 +215,7 @@ class EffectAwareDesigner:
             raise NLPDesignError(f"no effect-aware design of {K:g} tracks from track {T0:g} within "
                                  f"{st.max_samples} samples ({solves[-1].status if solves else 'no NLP'})")
         # verify on the full plant; step up on failure
-        for n in range(hi, min(hi + 12, st.max_samples) + 1):
+        for n in range(hi, min(hi + st.check_steps, st.max_samples) + 1):
             if not feasible(n):
                 continue
             _, v, q, _ = cache[n]
@@ -215,7 +230,7 @@ class EffectAwareDesigner:
             say(f"  N={n}: full-plant check failed (settle {m.settle_time_s * 1e3:.3f} ms, "
                 f"peak {m.peak_current_a:.4g} A)")
         raise NLPDesignError(f"no effect-aware design of {K:g} tracks from track {T0:g} passed the full-plant "
-                             f"check up to {min(hi + 12, st.max_samples)} samples")
+                             f"check up to {min(hi + st.check_steps, st.max_samples)} samples")
 
     def _profile(self, v, q, K, T0, n, lin: DesignResult, solves) -> Profile:
         u = self.imax * np.asarray(v[:n], float)

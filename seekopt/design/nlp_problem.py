@@ -22,7 +22,7 @@ variable O(1): states scaled by their warm-start excursion, currents in Imax, PE
           e_k = (y(k) - T0 - K) / band
           e_k + hi_k <= t,  e_k + lo_k >= -t          k >= N     settle band, robust envelope
           i_lo <= i(k, l) <= i_hi                                total current, robust envelope
-          |G (Imax i - u_hold)| <= hf_tol band                   unmodelled-mode guard (as ocp)
+          |G (Imax i - u_hold)| <= hf_tol band                   unmodelled-mode guard (the problem's bands)
           v = u_ff / Imax in [-1, 1], q = (r - K) / |K| in [-2, 2], both 0 for k >= N (rest at K)
 
 The plant is driven by the current variables ``i``, so the effects' curvature couples only the
@@ -45,7 +45,7 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
-from identification.model.ops import casadi_ops
+from identification.model.ops import SmoothingSettings, casadi_ops
 from identification.model.plant import ModalPlant
 
 import seekopt.design.qp as _qp
@@ -63,22 +63,20 @@ class NLPSettings:
 
     ``tail_s``: time after the seek carrying band rows in the NLP (the simulator check runs
     ``check_tail_s``); ``band_margin``/``current_margin``: ``beta``/``gamma`` as in
-    :class:`seekopt.design.ocp.SeekDesigner`; ``hf_*``: its unmodelled-mode guard (on the seek's
-    sub-steps and ``hf_extra`` samples more); ``rho``, ``rho_q``, ``w_e``, ``w_t``: cost weights
+    :class:`seekopt.design.problem.SeekProblem` (the unmodelled-mode guard is the problem's);
+    ``rho``, ``rho_q``, ``w_e``, ``w_t``: cost weights
     (smoothness of ``u_ff`` and ``r``, tail energy, worst residual); ``nlp_wall_s``: Ipopt wall-time
-    limit per solve; ``design_wall_s``: for a whole design; ``kappa_band``, ``kappa_current``:
+    limit per solve; ``design_wall_s``: for a whole design; ``check_steps``: how many samples
+    the seek is lengthened when the full-plant check fails; ``kappa_band``, ``kappa_current``:
     sharpness of the smooth maximum over the robust set (log-sum-exp, over-estimates the maximum by
     at most ``log(n) / kappa``: 0.02 band and 0.005 Imax for 22 plants); ``expand``: evaluate the NLP as SX (slower build, ~10x faster
-    derivatives); ``smoothing``: ``identification.model.ops.SmoothingSettings`` for the kinks
-    (None: the engine's default); ``ipopt``: extra Ipopt options."""
+    derivatives); ``smoothing``: :class:`~identification.model.ops.SmoothingSettings` of the kinks in
+    the NLP (friction sign over 20 track/s, saturation corners 2 mA, bias-table corners 50 tracks; the
+    full-plant check is exact); ``ipopt``: extra Ipopt options."""
 
     tail_s: float = 0.003
     band_margin: float = 0.8
     current_margin: float = 0.97
-    hf_guard: tuple | None = (0.45, 0.65)
-    hf_gain: float = 1.0
-    hf_tol: float = 0.1
-    hf_extra: int = 16
     rho: float = 1e-2
     rho_q: float = 1e-3
     w_e: float = 1.0
@@ -88,12 +86,14 @@ class NLPSettings:
     nlp_wall_s: float = 300.0
     design_wall_s: float = 1800.0
     check_tail_s: float = 0.015
+    check_steps: int = 12
     max_samples: int = 512
     reference_knots: int = 12
     kappa_band: float = 150.0
     kappa_current: float = 600.0
-    expand: bool = True
-    smoothing: object = None
+    expand: bool = False
+    smoothing: SmoothingSettings = field(default_factory=lambda: SmoothingSettings(
+        friction_velocity_tps=20.0, saturation_width_a=0.002, table_width_track=50.0))
     ipopt: dict = field(default_factory=dict)
     nlpsol: dict = field(default_factory=dict)
 
@@ -224,11 +224,12 @@ class SeekNLP:
     """
 
     def __init__(self, plant: ModalPlant, controller, nmax: int, tail: int, band: float,
-                 settings: NLPSettings, spread: "RobustSpread | None" = None):
+                 settings: NLPSettings, spread: "RobustSpread | None" = None, guard=None,
+                 guard_tol: float = 0.1):
         t_build = time.perf_counter()
         self.settings, self.band = settings, float(band)
         self.fs, self.L = float(controller.sample_rate_hz), int(controller.fast_multiple)
-        ops = casadi_ops() if settings.smoothing is None else casadi_ops(smooth=settings.smoothing)
+        ops = casadi_ops(settings.smoothing)
         F, (nx, nh, nc), self.dp = closed_loop_sample(plant, controller, ops)
         self.dims, nz = (nx, nh, nc), nx + nh + nc
         N, H, L = int(nmax), int(nmax) + int(tail), self.L
@@ -260,12 +261,10 @@ class SeekNLP:
         add("pes_hi", E - tt)
         add("pes_lo", E + tt)
         add("cur", I)
-        if settings.hf_guard:
-            lo, hi = settings.hf_guard
-            nsub = min(H, N + settings.hf_extra) * L
-            G, _ = _qp.hf_guard_matrix(plant.k0, self.fs, L, nsub, lo * self.fs, hi * self.fs,
-                                       settings.hf_gain, spacing_hz=max(self.fs / (2 * N), 50.0))
-            add("hf", ca.mtimes(ca.DM(G), imax * I[:nsub] - uh) / band)
+        self.guard_tol = float(guard_tol)
+        if guard is not None:               # residual of unmodelled modes [band] from the seek's currents
+            G = np.asarray(guard, dtype=float)
+            add("hf", ca.mtimes(ca.DM(G), imax * I[:G.shape[1]] - uh) / band)
         if spread is not None and spread.n:     # every plant of the set: smooth max over the set per row
             DY, dy, DI, di = spread.rows()
             wy = ca.vertcat(imax * V, aK * Q)
@@ -342,7 +341,7 @@ class SeekNLP:
             elif name in ("rob_ihi", "rob_ilo"):
                 ubg[sl] = gamma
             elif name == "hf":
-                lbg[sl], ubg[sl] = -st.hf_tol, st.hf_tol
+                lbg[sl], ubg[sl] = -self.guard_tol, self.guard_tol
         t_start = time.perf_counter()
         sol = self.solver(x0=xw, p=p, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
         wall = time.perf_counter() - t_start

@@ -3,7 +3,7 @@
 ``seekopt bench --plant AUGMENTED.json`` lands here when the plant carries input or force effects
 (:func:`seekopt.design.nlp.needs_nlp`): the paper's sine and windowed-sine profiles (shortest within
 ``Imax``, rigid-model reference; :func:`seekopt.evaluate.bench.baseline_profile`), the linear design
-(:class:`seekopt.design.ocp.SeekDesigner` on the plant's linear part) and the effect-aware design
+(:class:`seekopt.design.designer.SeekDesigner` on the plant's linear part) and the effect-aware design
 (:class:`seekopt.design.nlp.EffectAwareDesigner`), each played by the one simulator from the start
 track on the evaluation plant (the design plant with its effects, or ``truth``)
 (:func:`seekopt.design.feasibility.play_seek`).  The table is :func:`seekopt.evaluate.bench.format_table`'s.
