@@ -16,21 +16,16 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.optimize import lsq_linear
+
+from identification.estimate.linalg import cluster_cov as _cluster_cov, lstsq as _ls, wald
 
 __all__ = ["lstsq", "smooth_lstsq", "cluster_cov", "wald", "effective_n", "bic", "segments"]
 
 
 def lstsq(r: np.ndarray, Z: np.ndarray, bounds=None):
-    """Least squares ``r ~ Z theta`` (columns scaled; optionally bounded): ``(theta, sse)``."""
-    if Z.shape[1] == 0:
-        return np.zeros(0), float(r @ r)
-    s = np.linalg.norm(Z, axis=0); s[s == 0] = 1.0
-    if bounds is None:
-        th = np.linalg.lstsq(Z / s, r, rcond=1e-9)[0]
-    else:
-        th = lsq_linear(Z / s, r, bounds=(np.asarray(bounds[0]) * s, np.asarray(bounds[1]) * s)).x
-    th = th / s
+    """Least squares ``r ~ Z theta`` (optionally bounded): ``(theta, sse)``
+    (:func:`identification.estimate.linalg.lstsq`: columns scaled, relative cut-off 1e-9)."""
+    th = _ls(Z, r, rcond=1e-9, bounds=bounds)
     e = r - Z @ th
     return th, float(e @ e)
 
@@ -42,21 +37,9 @@ def segments(windows, e: np.ndarray) -> list:
 
 
 def cluster_cov(Z: np.ndarray, e: np.ndarray, windows) -> np.ndarray:
-    """Covariance of LS coefficients robust to any correlation within a seek (clusters)."""
-    Zi = np.linalg.pinv(Z.T @ Z)
-    scores = {}
-    i = 0
-    for (a, b), g in zip(windows.bounds, windows.groups):
-        scores[g] = scores.get(g, 0.0) + Z[i:i + b - a].T @ e[i:i + b - a]
-        i += b - a
-    meat = sum(np.outer(v, v) for v in scores.values())
-    m = len(scores)
-    return Zi @ meat @ Zi * m / max(m - 1, 1)
-
-
-def wald(th: np.ndarray, cov: np.ndarray) -> float:
-    """``th' cov^-1 th`` (chi^2 with len(th) degrees of freedom)."""
-    return float(th @ np.linalg.lstsq(cov, th, rcond=None)[0])
+    """Covariance of LS coefficients robust to any correlation within a seek (clusters: the
+    windows' groups; :func:`identification.estimate.linalg.cluster_cov`)."""
+    return _cluster_cov(Z, e, np.repeat(windows.groups, [b - a for a, b in windows.bounds]))
 
 
 def effective_n(e: np.ndarray, windows, max_lag: int = 100) -> float:

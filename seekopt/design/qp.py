@@ -148,11 +148,18 @@ def hf_guard_matrix(k0: float, fs: float, L: int, nsub: int, f_lo: float, f_hi: 
 
 # ---------------------------------------------------------------------------- the seek QP
 def pes_row_samples(nmax: int, horizon: int) -> np.ndarray:
-    """Samples carrying settle-band rows: every sample up to ``nmax + 32``, then every 2nd up to
-    ``nmax + 96``, every 4th up to ``nmax + 192`` and every 8th after (the slow closed-loop tail;
-    the designer re-checks every sample by simulation)."""
-    edges = [(0, nmax + 32, 1), (nmax + 32, nmax + 96, 2), (nmax + 96, nmax + 192, 4), (nmax + 192, horizon, 8)]
-    return np.concatenate([np.arange(a, min(b, horizon), s) for a, b, s in edges if a < horizon]).astype(int)
+    """Samples carrying settle-band rows: every sample up to ``nmax + 96``, then two adjacent samples of
+    every 4 up to ``nmax + 192`` and of every 8 after (the slow closed-loop tail; the designer re-checks
+    every sample of the nominal plant by simulation).  Pairs, not single samples: a lightly damped mode
+    near Nyquist makes the PES alternate ``a + b (-1)^k`` and rows on every 2nd sample saw only
+    ``|a + b|`` (a robust-set plant at +4 % frequency then exceeded the band on the odd samples)."""
+    edges = [(0, nmax + 96, 1), (nmax + 96, nmax + 192, 4), (nmax + 192, horizon, 8)]
+    parts = []
+    for a, b, s in edges:
+        if a < horizon:
+            k = np.arange(a, min(b, horizon))
+            parts.append(k if s == 1 else k[(k - a) % s < 2])
+    return np.concatenate(parts).astype(int)
 
 
 class SeekQP:
@@ -209,7 +216,8 @@ class SeekQP:
         if not self.free_ref:
             Rfull = np.asarray(R, float)[:Hn, :N]
         stride = max(int(stride), 1)
-        ks_other = np.unique(np.r_[ks[ks < N + 32][::stride], ks[ks >= N + 32]])   # thinned: other plants
+        near = ks[ks < N + 32]      # thinned for the other plants: pairs of adjacent samples (see pes_row_samples)
+        ks_other = np.unique(np.r_[near[(near % (2 * stride)) < 2] if stride > 1 else near, ks[ks >= N + 32]])
         for i, m in enumerate(maps):
             ksi = ks if i == 0 else ks_other
             Tyu, Tyr, syr = m.position_rows(ksi, N if self.free_ref else Hn)

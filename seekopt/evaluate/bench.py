@@ -24,7 +24,7 @@ from seekopt.design.designer import DesignInfeasible, SeekDesigner
 from seekopt.design.metrics import SeekMetrics, evaluate_profile, simulate_profile
 from seekopt.design.problem import SeekProblem
 from seekopt.design.profiles import Profile, t_bang_bang
-from seekopt.design.family import Drift
+from seekopt.design.family import Drift, calibrated, played_on
 from seekopt.design.robust import RobustSpec
 
 __all__ = ["BenchRow", "BenchResult", "baseline_profile", "tuned_baseline", "perturbed_plant", "mode_response",
@@ -115,7 +115,9 @@ def run_bench(plant: ModalPlant, controller, tracks: float, imax: float, settle:
     plant : ModalPlant
         Design plant (identified).
     truth : ModalPlant, optional
-        Evaluation plant (default: ``plant``).
+        Evaluation plant (default: ``plant``).  A truth whose ``k0`` differs from ``plant``'s (another
+        member of the family) plays every profile through its drive's gain calibration (feedforward x
+        ``plant.k0 / truth.k0``); the best-length baselines are tuned on it without that scaling.
     robust : Drift, RobustSpec, str or None
         Uncertainty of the robust optimal variant (default :data:`DEFAULT_ROBUST`; a string is read as
         a ``RobustSpec``; None: nominal only).
@@ -130,11 +132,15 @@ def run_bench(plant: ModalPlant, controller, tracks: float, imax: float, settle:
     """
     fs = float(controller.sample_rate_hz)
     evalp = truth or plant
+    # a truth of another gain (another member of the family) plays every profile through its drive's
+    # seek-gain calibration: feedforward x design gain / its gain (seekopt.design.family, module notes)
+    played = calibrated(evalp, plant.k0) if abs(evalp.k0 / plant.k0 - 1.0) > 1e-6 else evalp
     tbb = t_bang_bang(tracks, plant.k0, imax)
     rows = []
 
     def add(label, kind, prof, dt=0.0, note=""):
-        m = evaluate_profile(evalp, controller, prof, settle=settle, horizon_s=horizon_s, k0_for_tbb=plant.k0)
+        m = evaluate_profile(played, controller, played_on(prof, played), settle=settle, horizon_s=horizon_s,
+                             k0_for_tbb=plant.k0)
         rows.append(BenchRow(label, kind, m, design_time_s=dt, note=note, profile=prof))
 
     for kind in ("sine", "windowed_sine"):

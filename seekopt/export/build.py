@@ -139,22 +139,29 @@ def _chain(design, k_top, st: ClassSettings, rho: float, vmax):
         raise RuleError("no verified design of a 1-track seek within the class limits")
     out = [(1, first)]
     alpha = 0.5
+    bad: dict = {}          # limit -> shortest length seen to fail it (settle non-decreasing in K)
     while out[-1][1].tracks < k_top:
         prev = out[-1][1]
         K0, limit = prev.tracks + 1, rho * prev.settle_samples
 
         def ok(K):
             a = design(K)
-            return fits(a) and a.settle_samples <= limit
+            good = fits(a) and a.settle_samples <= limit
+            if not good:
+                bad[limit] = min(bad.get(limit, K), K)
+            return good
         g = min(k_top, max(K0, int(prev.tracks * (limit / max(prev.settle_samples, 1)) ** (0.9 / alpha))))
-        if ok(g):
-            best = g
-            g2 = min(k_top, prev.tracks + 2 * (g - prev.tracks))
-            if g2 > g and ok(g2):
-                best = g2
-        else:
-            lo, hi = K0 - 1, g
-            while hi - lo > (1 if lo < K0 else max(1, lo // 64)):   # ~1.5 % once a class is found
+        known = bad.get(limit)
+        if known is None or known > g:
+            if ok(g):
+                best = g
+                g2 = min(k_top, prev.tracks + 2 * (g - prev.tracks))
+                if g2 > g and (known is None or g2 < known) and ok(g2):
+                    best = g2
+            known = bad.get(limit)
+        if known is not None and known <= g:    # bisection below the shortest failure: exact while
+            lo, hi = K0 - 1, known              # nothing fits, to ~1.5 % once something does
+            while hi - lo > (1 if lo < K0 else max(1, lo // 64)):
                 mid = (lo + hi) // 2
                 lo, hi = (mid, hi) if ok(mid) else (lo, mid)
             best = lo if lo >= K0 else K0
@@ -204,7 +211,7 @@ def _coasts(steps, k_from: int, stroke: int, v_start: float, v_cap: float, rho_v
         k_lo = int(math.floor(s.min_tracks)) + 1
         if k_lo > stroke:
             break
-        if k_lo <= out[-1][0]:
+        while out and k_lo <= out[-1][0]:         # a faster step that coasts as early replaces slower ones
             out.pop()
         out.append((max(k_lo, k_from), d_q, s))
     return [_coast_class(k_lo, d_q, s, imax, F) for k_lo, d_q, s in out]

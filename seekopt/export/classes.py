@@ -48,13 +48,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 __all__ = ["RestClass", "CoastClass", "SeekSet", "SeekRule", "RuleError", "div_round", "frac_bits_for",
-           "quantize_q15", "quantize_ref_q", "FF_Q", "U_SAT", "DESCRIPTOR_BYTES"]
+           "quantize_q15", "quantize_ref_q", "FF_Q", "U_SAT", "DESCRIPTOR_BYTES",
+           "SET_DESCRIPTOR_BYTES"]
 
 FF_Q = 15
 #: Feedforward saturation (symmetric): ``|u| <= 32767``.
 U_SAT = 32767
 #: Bytes of one class descriptor in the C tables (int32 x 2, uint32 x 2, uint16 x 3, padding to 4).
 DESCRIPTOR_BYTES = 24
+#: Bytes of a set descriptor (6 integers and 4 pointers; 64-bit pointers, the larger case).
+SET_DESCRIPTOR_BYTES = 48
 
 
 class RuleError(ValueError):
@@ -192,10 +195,11 @@ class SeekSet:
                 raise RuleError(f"TPI {self.tpi}: a class table has {c.n} samples (> 65535)")
 
     def table_bytes(self) -> int:
-        """Memory of this set's tables: 2 B per feedforward sample, 4 B per reference sample, one
-        :data:`DESCRIPTOR_BYTES` descriptor per class and one for the set."""
+        """Memory of this set's tables [bytes]: 2 per feedforward sample, 4 per reference sample,
+        :data:`DESCRIPTOR_BYTES` per class and :data:`SET_DESCRIPTOR_BYTES` for the set (the code of
+        ``seekopt_seek_sample`` is shared by all sets and not counted)."""
         data = sum(2 * len(c.ff_q15) + 4 * len(c.ref_q) for c in self.classes + self.coasts)
-        return data + DESCRIPTOR_BYTES * (len(self.classes) + len(self.coasts) + 1)
+        return data + DESCRIPTOR_BYTES * (len(self.classes) + len(self.coasts)) + SET_DESCRIPTOR_BYTES
 
     def lookup(self, tracks: int):
         """``("rest", RestClass)`` or ``("coast", CoastClass)`` for ``|tracks|``; None if out of range."""
