@@ -36,7 +36,7 @@ from seekopt.design.profiles import Profile, t_bang_bang
 from seekopt.drive.simulator import simulate_2dof
 
 __all__ = ["StartError", "position_dependent_effects", "fitted_range", "resolve_start", "hold_current",
-           "play_seek", "HoldCheck", "hold_check", "nonlinear_effects"]
+           "play_seek", "HoldCheck", "hold_check", "nonlinear_effects", "compensate"]
 
 #: Positions [track] at which an effect's hooks are compared to find position dependence.
 _PROBE_TRACKS = (-1.0e5, -1.3e4, 0.0, 7.7e3, 2.9e4, 6.1e4, 1.0e5)
@@ -219,3 +219,42 @@ def hold_check(plant: ModalPlant, controller, target_track: float, band: float, 
         if not culprits:
             culprits = [e.name for e in suspects]
     return HoldCheck(float(target_track), float(band), res, holds, culprits, float(window_s))
+
+
+def compensate(plant: ModalPlant, controller, profile: Profile, start_track: float = 0.0,
+               horizon_s: float = 0.004) -> tuple:
+    """The feedforward that makes the full plant deliver, along the seek the linear design plans,
+    the current its linear part would: the warm start of the effect-aware NLP.
+
+    ``profile`` (designed on ``plant.linear_part()``) is played on the linear part from rest at
+    ``start_track``; at every sample ``k`` the command ``c_k`` solves, with the plant's own stepping
+    engine (``DiscretePlant.command`` / ``net_force``)::
+
+        command(c_k + u_hold + fb_k, x_k) + net_force(x_k, v_k) = u_k + u_hold,lin + fb_k + force0,lin
+
+    (``x, v``: the planned head position and velocity, ``fb``: the feedback current of that run).
+    If the full plant then follows the plan, its loop sees exactly the linear design's run.
+    Returns ``(Profile, peak)``: the compensated profile (reference unchanged) and the peak total
+    current [A] of the planned run through the compensation.
+    """
+    fs, L = float(controller.sample_rate_hz), int(controller.fast_multiple)
+    dt = 1.0 / (fs * L)
+    lin = plant.linear_part()
+    n = profile.n
+    m = n + max(int(round(horizon_s * fs)), 1)
+    u, r = profile.padded(m)
+    uhl, uh = hold_current(lin, start_track, dt), hold_current(plant, start_track, dt)
+    sim = simulate_2dof(lin, controller, u + uhl, start_track + r, position0=start_track, current0=uhl)
+    x = sim.true_position_track
+    v = np.gradient(x) * fs
+    fb = sim.feedback_a
+    dl, dp = lin.discretize(dt), plant.discretize(dt)
+    out = np.empty(m)
+    for k in range(m):
+        target = dl.command(u[k] + uhl + fb[k], x[k]) + dl.net_force(x[k], v[k])
+        out[k] = optimize.brentq(lambda c: dp.command(c + uh + fb[k], x[k]) + dp.net_force(x[k], v[k]) - target,
+                                 -10.0, 10.0, xtol=1e-12)
+    peak = float(np.max(np.abs(out + uh + fb)))
+    comp = Profile(out[:n], profile.reference_track.copy(), profile.sample_rate_hz, profile.tracks, profile.imax_a,
+                   profile.settle_track, profile.kind, profile.seek_samples, dict(profile.meta))
+    return comp, peak

@@ -34,7 +34,7 @@ from identification.model.plant import ModalPlant
 
 from seekopt.design import guard as _guard, qp as _qp
 from seekopt.design.designer import DesignResult, SeekDesigner
-from seekopt.design.feasibility import (hold_check, hold_current, nonlinear_effects, play_seek,
+from seekopt.design.feasibility import (compensate, hold_check, hold_current, nonlinear_effects, play_seek,
                                         resolve_start)
 from seekopt.design.metrics import SeekMetrics
 from seekopt.design.nlp_problem import (BUILD_COUNT, NLPSettings, NLPSolve, RobustSpread, SeekNLP,
@@ -48,6 +48,10 @@ __all__ = ["NLPSettings", "NLPDesignError", "DesignUnholdable", "NLPSolve", "NLP
 
 class NLPDesignError(RuntimeError):
     """Ipopt failed, ran out of time, or no design passed the full-plant check (never a profile)."""
+
+
+class _Budget(Exception):
+    """The NLP budget of one design is spent (a feasible length is known)."""
 
 
 class DesignUnholdable(ValueError):
@@ -124,6 +128,7 @@ class EffectAwareDesigner:
         self._nlps: dict = {}
         self._spreads: dict = {}
         self._maps = None
+        self._derated: dict = {}
 
     def _nlp(self, n: int):
         """``(SeekNLP, RobustSpread or None)`` of the size class of ``n`` samples (built on first use)."""
@@ -133,21 +138,26 @@ class EffectAwareDesigner:
                                  f"({self.settings.max_samples} samples)")
         if c not in self._nlps:
             H = c + self.tail
-            if self._maps is None or self._maps[0].horizon < H + 1:
-                self._maps = [_qp.LoopMaps(p, self.controller, H + 1 + self.tail) for p in self.linear.plants]
+            Hq = c + self.linear.tail                   # the linear designer's horizon (its guard rows)
+            need = max(H + 1 + self.tail, Hq + 1)
+            if self._maps is None or self._maps[0].horizon < need:
+                self._maps = [_qp.LoopMaps(p, self.controller, need) for p in self.linear.plants]
             if len(self.linear.plants) > 1:
                 prev = max([k for k in self.sizes if k < c], default=0)
                 self._spreads[c] = RobustSpread(self._maps, c, H, self.settle, nmax_prev=prev)
             guard = None
-            if self.linear.guard_bands:         # the linear designer's unmodelled-mode guard, same bands
-                dfg = _guard.grid_spacing(self.fs, c)
-                guard = _guard.guard_rows(self.linear.guard_bands, self.plant.k0, self.fs, self.L, H * self.L,
-                                          spacing_hz=dfg, curve=self.linear.guard_curve,
-                                          extra_hz=_guard.loop_peaks(self._maps[0], self.linear.guard_bands,
-                                                                     self.fs, dfg))
+            if self.linear.guard_bands:         # the linear designer's unmodelled-mode guard: same bands,
+                dfg = _guard.grid_spacing(self.fs, c)   # rows and horizon, on the nominal linear loop
+                rows = _guard.guard_rows(self.linear.guard_bands, self.plant.k0, self.fs, self.L, Hq * self.L,
+                                         spacing_hz=dfg, curve=self.linear.guard_curve,
+                                         extra_hz=_guard.loop_peaks(self._maps[0], self.linear.guard_bands,
+                                                                    self.fs, dfg))
+                if rows is not None:
+                    Tiu, Tir, sir = self._maps[0].current_rows(Hq, c)
+                    G = rows[0]
+                    guard = (np.hstack([G @ Tiu, G @ Tir]) / self.settle, G @ sir / self.settle)
             self._nlps[c] = SeekNLP(self.nlp_plant, self.controller, c, self.tail, self.settle, self.settings,
-                                    spread=self._spreads.get(c), guard=None if guard is None else guard[0],
-                                    guard_tol=self.problem.hf_tol)
+                                    spread=self._spreads.get(c), guard=guard, guard_tol=self.problem.hf_tol)
         return self._nlps[c], self._spreads.get(c)
 
     def design(self, tracks: float, start_track: float | None = None, progress=None,
@@ -168,18 +178,19 @@ class EffectAwareDesigner:
         if not hc.holds:
             raise DesignUnholdable(hc.message())
         t_begin = time.perf_counter()
-        say(f"linear warm start (QP) for {K:g} tracks")
+        st = self.settings
+        say(f"linear design (QP) for {K:g} tracks")
         lin = self.linear.design(K) if linear is None else linear
         lin_m, _ = play_seek(self.plant, self.controller, lin.profile, T0, settle=self.settle,
-                             horizon_s=self.settings.check_tail_s)
-        uh = hold_current(self.nlp_plant, T0, 1.0 / (self.fs * self.L))
-        dp = self.nlp_plant.discretize(1.0 / (self.fs * self.L))
+                             horizon_s=st.check_tail_s)
+        warm, comp = self._warm_start(K, T0, lin, say)
+        dt = 1.0 / (self.fs * self.L)
+        uh = hold_current(self.nlp_plant, T0, dt)
+        dp = self.nlp_plant.discretize(dt)
         dp.reset(T0, 0.0, current=uh)
-        nc = self.controller.n_states
-        x0 = np.r_[dp.x, dp.hist, np.zeros(nc)]
-        n_lin = int(lin.settle_samples)
-        u_lin, r_lin = lin.profile.current_a[:n_lin], lin.profile.reference_track[:n_lin]
-        st = self.settings
+        x0 = np.r_[dp.x, dp.hist, np.zeros(self.controller.n_states)]
+        n0 = int(warm.settle_samples)
+        v_w, q_w = comp.current_a[:n0] / self.imax, (warm.profile.reference_track[:n0] - K) / abs(K)
         solves: list = []
         cache: dict = {}
 
@@ -189,14 +200,14 @@ class EffectAwareDesigner:
             if time.perf_counter() - t_begin > st.design_wall_s:
                 raise NLPDesignError(f"design of {K:g} tracks from track {T0:g} ran out of time "
                                      f"({st.design_wall_s:g} s, {len(solves)} NLPs)")
+            if len(solves) >= st.max_nlps and any(ok for ok, *_ in cache.values()):
+                raise _Budget()
             nlp, spread = self._nlp(n)
             ok_prev = [m for m, (ok, *_ ) in cache.items() if ok]
-            if ok_prev:       # warm start: the nearest feasible design, else the linear one
-                m = min(ok_prev, key=lambda m: abs(m - n))
-                v0, q0 = _stretch(cache[m][1], m, n), _stretch(cache[m][2], m, n)
-            else:
-                v0, q0 = _stretch(u_lin / self.imax, n_lin, n), _stretch((r_lin - K) / abs(K), n_lin, n)
-            v0 = np.r_[v0, np.zeros(nlp.N - n)]; q0 = np.r_[q0, np.zeros(nlp.N - n)]
+            m = min(ok_prev, key=lambda m: abs(m - n)) if ok_prev else n0
+            vb, qb = (cache[m][1], cache[m][2]) if ok_prev else (v_w, q_w)
+            v0 = np.r_[_stretch(vb, m, n) * (m / n) ** 2, np.zeros(nlp.N - n)]   # same distance in n samples
+            q0 = np.r_[_stretch(qb, m, n), np.zeros(nlp.N - n)]
             rec, v, q = nlp.solve(K, T0, n, self.imax, uh, x0, v0, q0, st.band_margin, st.current_margin)
             solves.append(rec)
             if not rec.success and rec.status in ("Maximum_WallTime_Exceeded", "Maximum_CpuTime_Exceeded"):
@@ -205,24 +216,40 @@ class EffectAwareDesigner:
                 _, e, i = nlp.rollout(x0, v, q, K, T0, self.imax, uh)
                 dE, _ = spread.spread(v, q, K, self.imax)
                 rec.residual = max(rec.residual, float(np.max(np.abs(e[n:] + np.vstack([0 * e, dE])[:, n:]))))
-            say(f"  NLP N={n}: {rec.status}, {rec.iterations} it, {rec.wall_s:.2f} s, residual {rec.residual:.3g} band")
-            good = rec.success and rec.residual <= st.band_margin * (1 + 1e-6)
-            cache[n] = (good, v[:n], q[:n], rec.residual)
+            say(f"  NLP N={n}: {rec.status}, {rec.iterations} it, {rec.wall_s:.2f} s, residual {rec.residual:.3g} band, "
+                f"current slack {rec.slack:.2g}, guard excess {rec.guard_excess:.2g} band")
+            good = rec.success and rec.residual <= st.band_margin * (1 + 1e-6) and rec.slack <= st.slack_tol
+            res = rec.residual if rec.slack <= st.slack_tol else max(rec.residual, st.band_margin * (1 + rec.slack))
+            cache[n] = (good, v[:n], q[:n], res)
             return good
 
-        lo, hi = _search_length(feasible, lambda n: cache[n][3], n_lin, st.band_margin, st.max_samples)
+        try:
+            lo, hi = _search_length(feasible, lambda n: cache[n][3], n0, st.band_margin, st.max_samples)
+        except _Budget:
+            hi = min(m for m, (ok, *_ ) in cache.items() if ok)
         if hi is None:
             raise NLPDesignError(f"no effect-aware design of {K:g} tracks from track {T0:g} within "
                                  f"{st.max_samples} samples ({solves[-1].status if solves else 'no NLP'})")
         # verify on the full plant; step up on failure
-        for n in range(hi, min(hi + st.check_steps, st.max_samples) + 1):
-            if not feasible(n):
+        tried = 0
+        for n in sorted(m for m, (ok, *_ ) in cache.items() if ok and m >= hi) + \
+                list(range(hi + 1, min(hi + st.check_steps, st.max_samples) + 1)):
+            if tried >= st.check_steps:
+                break
+            try:
+                if not feasible(n):
+                    continue
+            except _Budget:
                 continue
+            tried += 1
             _, v, q, _ = cache[n]
             prof = self._profile(v, q, K, T0, n, lin, solves)
             m, _ = play_seek(self.plant, self.controller, prof, T0, settle=self.settle,
                              horizon_s=st.check_tail_s)
             if m.peak_current_a <= self.imax * (1 + 1e-9) and m.settle_time_s * self.fs <= n + 1 + 1e-9:
+                rec = next(s for s in reversed(solves) if s.n_seek == n)
+                prof.meta.update(guard_excess_band=round(rec.guard_excess, 4),
+                                 warm_start_imax_a=round(warm.profile.imax_a, 5))
                 prof.meta.update(design_status="verified", ipopt_iterations=sum(s.iterations for s in solves),
                                  ipopt_time_s=round(sum(s.wall_s for s in solves), 3), n_nlp=len(solves))
                 return NLPDesignResult(prof, m, T0, n, solves, lin, lin_m,
@@ -230,7 +257,30 @@ class EffectAwareDesigner:
             say(f"  N={n}: full-plant check failed (settle {m.settle_time_s * 1e3:.3f} ms, "
                 f"peak {m.peak_current_a:.4g} A)")
         raise NLPDesignError(f"no effect-aware design of {K:g} tracks from track {T0:g} passed the full-plant "
-                             f"check up to {min(hi + st.check_steps, st.max_samples)} samples")
+                             f"check ({tried} candidates from {hi} samples)")
+
+    def _warm_start(self, K, T0, lin, say):
+        """``(DesignResult, compensated Profile)``: the linear design whose feedforward, passed through
+        the plant's input map and forces along its planned run (:func:`compensate`), stays within
+        ``current_margin * Imax``; when it does not (a torque constant below 1, a bias the hold must
+        carry), the linear design is redone for a lower current limit (cached per 1 % of Imax)."""
+        limit = self.settings.current_margin * self.imax
+        comp, peak = compensate(self.plant, self.controller, lin.profile, T0)
+        for _ in range(3):
+            if peak <= limit * (1 + 1e-6):
+                return lin, comp
+            frac = math.floor(100.0 * lin.profile.imax_a / self.imax * limit / peak) / 100.0
+            if frac < 0.3:
+                break
+            if frac not in self._derated:
+                self._derated[frac] = SeekDesigner(SeekProblem(
+                    self.plant.linear_part(), self.controller, frac * self.imax, self.settle,
+                    band_margin=self.settings.band_margin, current_margin=self.settings.current_margin,
+                    robust=self.robust, family=self.problem.family))
+            say(f"linear design for {K:g} tracks at {frac:.2f} Imax (the effects need the rest)")
+            lin = self._derated[frac].design(K)
+            comp, peak = compensate(self.plant, self.controller, lin.profile, T0)
+        return lin, comp
 
     def _profile(self, v, q, K, T0, n, lin: DesignResult, solves) -> Profile:
         u = self.imax * np.asarray(v[:n], float)

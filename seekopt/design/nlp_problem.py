@@ -22,7 +22,8 @@ variable O(1): states scaled by their warm-start excursion, currents in Imax, PE
           e_k = (y(k) - T0 - K) / band
           e_k + hi_k <= t,  e_k + lo_k >= -t          k >= N     settle band, robust envelope
           i_lo <= i(k, l) <= i_hi                                total current, robust envelope
-          |G (Imax i - u_hold)| <= hf_tol band                   unmodelled-mode guard (the problem's bands)
+          |G_v [u_ff; r - K] + K g| <= hf_tol band              unmodelled-mode guard (the linear designer's
+                                                                  rows on the nominal linear loop)
           v = u_ff / Imax in [-1, 1], q = (r - K) / |K| in [-2, 2], both 0 for k >= N (rest at K)
 
 The plant is driven by the current variables ``i``, so the effects' curvature couples only the
@@ -65,9 +66,13 @@ class NLPSettings:
     ``check_tail_s``); ``band_margin``/``current_margin``: ``beta``/``gamma`` as in
     :class:`seekopt.design.problem.SeekProblem` (the unmodelled-mode guard is the problem's);
     ``rho``, ``rho_q``, ``w_e``, ``w_t``: cost weights
-    (smoothness of ``u_ff`` and ``r``, tail energy, worst residual); ``nlp_wall_s``: Ipopt wall-time
-    limit per solve; ``design_wall_s``: for a whole design; ``check_steps``: how many samples
-    the seek is lengthened when the full-plant check fails; ``kappa_band``, ``kappa_current``:
+    (smoothness of ``u_ff`` and ``r``, tail energy, worst residual); ``w_slack``: weight of the elastic
+    slacks on the current and guard rows (exact penalty: the NLP is feasible at every length, a length
+    is feasible when the current slack ends below ``slack_tol``; the guard's excess is recorded -- the
+    NLP's smooth feedforward correction cannot always shape the spectrum as the QP's free samples do); ``nlp_wall_s``: Ipopt wall-time
+    limit per solve; ``design_wall_s``: for a whole design; ``check_steps``: how many candidates
+    the full-plant check tries (the seek lengthened on failure); ``max_nlps``: NLPs of the length search
+    once a feasible length is known; ``kappa_band``, ``kappa_current``:
     sharpness of the smooth maximum over the robust set (log-sum-exp, over-estimates the maximum by
     at most ``log(n) / kappa``: 0.02 band and 0.005 Imax for 22 plants); ``expand``: evaluate the NLP as SX (slower build, ~10x faster
     derivatives); ``smoothing``: :class:`~identification.model.ops.SmoothingSettings` of the kinks in
@@ -78,6 +83,8 @@ class NLPSettings:
     band_margin: float = 0.8
     current_margin: float = 0.97
     rho: float = 1e-2
+    w_slack: float = 1e3
+    slack_tol: float = 1e-4
     rho_q: float = 1e-3
     w_e: float = 1.0
     w_t: float = 10.0
@@ -86,9 +93,11 @@ class NLPSettings:
     nlp_wall_s: float = 300.0
     design_wall_s: float = 1800.0
     check_tail_s: float = 0.015
-    check_steps: int = 12
+    check_steps: int = 6
+    max_nlps: int = 6
     max_samples: int = 512
     reference_knots: int = 12
+    feedforward_knots: int = 24
     kappa_band: float = 150.0
     kappa_current: float = 600.0
     expand: bool = False
@@ -101,7 +110,9 @@ class NLPSettings:
 @dataclass
 class NLPSolve:
     """One Ipopt call: seek length, status, iterations, wall time [s], worst residual [band]
-    (over the robust set when there is one)."""
+    (over the robust set when there is one), the elastic slack left on the current rows [Imax] (above
+    ``slack_tol`` the length is infeasible) and the unmodelled-mode guard's excess over its tolerance
+    [band] (elastic: penalised, recorded in the profile, not a feasibility condition)."""
 
     n_seek: int
     status: str
@@ -109,6 +120,8 @@ class NLPSolve:
     iterations: int
     wall_s: float
     residual: float
+    slack: float = 0.0
+    guard_excess: float = 0.0
 
     def to_dict(self) -> dict:
         return dict(self.__dict__)
@@ -242,8 +255,12 @@ class SeekNLP:
         Kp, aK, T0, imax, uh = (ca.MX.sym(n) for n in ("K", "absK", "T0", "imax", "uhold"))
         x0, w = ca.MX.sym("x0", nz), ca.MX.sym("w", H + 1)
         nb = self.nb = min(N, int(settings.reference_knots))
-        V, C, tt = ca.MX.sym("v", N), ca.MX.sym("c", nb), ca.MX.sym("t")
+        nv = self.nv = min(N, int(settings.feedforward_knots))
+        A, CV, C, tt = ca.MX.sym("a"), ca.MX.sym("cv", nv), ca.MX.sym("c", nb), ca.MX.sym("t")
+        sc, sg = ca.MX.sym("s_cur"), ca.MX.sym("s_guard")   # elastic slacks: the NLP is always feasible
+        vb, Bv = ca.MX.sym("v_base", N), ca.MX.sym("Bv", N, nv)
         qb, Bq = ca.MX.sym("q_base", N), ca.MX.sym("B", N, nb)
+        V = (1 + A) * vb + ca.mtimes(Bv, CV)  # feedforward: the warm start scaled plus a smooth correction
         Q = qb + ca.mtimes(Bq, C)             # reference offset: a base plus a smooth correction
         U = ca.vertcat(ca.horzcat(imax * V.T + uh, ca.repmat(uh, 1, H - N)),
                        ca.horzcat(T0 + Kp + aK * Q.T, ca.repmat(T0 + Kp, 1, H - N)),
@@ -258,13 +275,17 @@ class SeekNLP:
                                  np.arange(expr.numel()) if samples is None else np.asarray(samples, int))
             rows.append(expr)
 
+        add("ff", V)
         add("pes_hi", E - tt)
         add("pes_lo", E + tt)
-        add("cur", I)
+        add("cur_hi", I - sc)
+        add("cur_lo", I + sc)
         self.guard_tol = float(guard_tol)
-        if guard is not None:               # residual of unmodelled modes [band] from the seek's currents
-            G = np.asarray(guard, dtype=float)
-            add("hf", ca.mtimes(ca.DM(G), imax * I[:G.shape[1]] - uh) / band)
+        if guard is not None:               # residual of unmodelled modes [band]: linear rows on (u_ff, r)
+            Gm, g0 = (np.asarray(a, dtype=float) for a in guard)
+            z = ca.mtimes(ca.DM(Gm), ca.vertcat(imax * V, aK * Q)) + Kp * ca.DM(g0)
+            add("hf_hi", z - sg)
+            add("hf_lo", z + sg)
         if spread is not None and spread.n:     # every plant of the set: smooth max over the set per row
             DY, dy, DI, di = spread.rows()
             wy = ca.vertcat(imax * V, aK * Q)
@@ -282,12 +303,13 @@ class SeekNLP:
                     add("rob_hi", base + up - tt, kb)                # e + max_j s_j <= t
                     add("rob_lo", -base + dn - tt, kb)               # -e + max_j (-s_j) <= t
                 else:
-                    add("rob_ihi", base + up, kc)                    # i + max_j di_j <= gamma
-                    add("rob_ilo", -base + dn, kc)
+                    add("rob_ihi", base + up - sc, kc)               # i + max_j di_j <= gamma
+                    add("rob_ilo", -base + dn - sc, kc)
         f = (settings.w_t * tt ** 2 + settings.rho * ca.sumsqr(ca.diff(ca.vertcat(0, V, 0)))
-             + settings.rho_q * ca.sumsqr(ca.diff(ca.vertcat(0, Q, 0))) + ca.dot(w, E ** 2))
-        x = ca.vertcat(V, C, tt)
-        p = ca.vertcat(Kp, aK, T0, imax, uh, x0, w, qb, ca.vec(Bq))
+             + settings.rho_q * ca.sumsqr(ca.diff(ca.vertcat(0, Q, 0))) + ca.dot(w, E ** 2)
+             + settings.w_slack * (sc + sg))
+        x = ca.vertcat(A, CV, C, tt, sc, sg)
+        p = ca.vertcat(Kp, aK, T0, imax, uh, x0, w, vb, ca.vec(Bv), qb, ca.vec(Bq))
         g = ca.vertcat(*rows)
         self.nx_dec, self.ng = x.numel(), g.numel()
         ipopt = {"print_level": 0, "sb": "yes", "max_iter": settings.max_iter, "tol": settings.tol,
@@ -325,10 +347,12 @@ class SeekNLP:
         w = np.zeros(ne); w[nseek:] = st.w_e / (ne - nseek)
         p = np.r_[K, abs(K), T0, imax, uh, x0, w]
         _, e0, _ = self.rollout(x0, v0, q0, K, T0, imax, uh)
-        B = _hat_basis(nseek, N, self.nb)
-        p = np.r_[p, q0, B.T.ravel()]
-        xw = np.r_[v0, np.zeros(self.nb), float(np.max(np.abs(e0[nseek:])))]
-        lbx, ubx = np.r_[-1.0 * live, np.full(self.nb, -np.inf), 0.0], np.r_[1.0 * live, np.full(self.nb, np.inf), np.inf]
+        B, Bv = _hat_basis(nseek, N, self.nb), _hat_basis(nseek, N, self.nv)
+        p = np.r_[p, v0, Bv.T.ravel(), q0, B.T.ravel()]
+        nd = 1 + self.nv + self.nb
+        xw = np.r_[np.zeros(nd), float(np.max(np.abs(e0[nseek:]))), 0.1, 0.1]
+        lbx = np.r_[-0.5, np.full(nd - 1, -np.inf), 0.0, 0.0, 0.0]
+        ubx = np.r_[0.5, np.full(nd - 1, np.inf), np.inf, np.inf, np.inf]
         lbg, ubg = np.full(self.ng, -np.inf), np.full(self.ng, np.inf)
         for name, (off, n, smp) in self.blocks.items():
             sl = slice(off, off + n)
@@ -336,12 +360,16 @@ class SeekNLP:
                 ubg[sl] = np.where(smp >= nseek, 0.0, np.inf)
             elif name == "pes_lo":                      # e + t >= 0 after the seek
                 lbg[sl] = np.where(smp >= nseek, 0.0, -np.inf)
-            elif name == "cur":
-                lbg[sl], ubg[sl] = -gamma, gamma
-            elif name in ("rob_ihi", "rob_ilo"):
+            elif name == "ff":
+                lbg[sl], ubg[sl] = -live, live
+            elif name in ("cur_hi", "rob_ihi", "rob_ilo"):
                 ubg[sl] = gamma
-            elif name == "hf":
-                lbg[sl], ubg[sl] = -self.guard_tol, self.guard_tol
+            elif name == "cur_lo":
+                lbg[sl] = -gamma
+            elif name == "hf_hi":
+                ubg[sl] = self.guard_tol
+            elif name == "hf_lo":
+                lbg[sl] = -self.guard_tol
         t_start = time.perf_counter()
         sol = self.solver(x0=xw, p=p, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
         wall = time.perf_counter() - t_start
@@ -350,9 +378,13 @@ class SeekNLP:
         status = str(stats.get("return_status", "?"))
         ok = (bool(stats.get("success", False)) or status == "Solved_To_Acceptable_Level") \
             and bool(np.all(np.isfinite(xo)))
+        self.last_slacks = (float(xo[nd + 1]), float(xo[nd + 2]))      # (current [Imax], guard [band])
+        slack = float(xo[nd + 1]) if ok else math.inf
+        guard_excess = float(xo[nd + 2]) if ok else math.inf
         rec = NLPSolve(int(nseek), status, ok, int(stats.get("iter_count", 0)), wall,
-                       float(xo[N + self.nb]) if ok else math.inf)
-        return rec, xo[:N], q0 + B @ xo[N:N + self.nb]
+                       float(xo[nd]) if ok else math.inf, slack, guard_excess)
+        v = (1 + xo[0]) * v0 + Bv @ xo[1:1 + self.nv]
+        return rec, v, q0 + B @ xo[1 + self.nv:nd]
 
 
 def _hat_basis(n: int, nmax: int, nb: int) -> np.ndarray:
