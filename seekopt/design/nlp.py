@@ -181,7 +181,9 @@ class EffectAwareDesigner:
         st = self.settings
         say(f"linear design (QP) for {K:g} tracks")
         lin = self.linear.design(K) if linear is None else linear
-        lin_m, _ = play_seek(self.plant, self.controller, lin.profile, T0, settle=self.settle,
+        # checks on the plant the NLP designs for: output effects (run-out) are the spindle's phase, not
+        # the seek's, and no feedforward removes them (the hold check above includes them)
+        lin_m, _ = play_seek(self.nlp_plant, self.controller, lin.profile, T0, settle=self.settle,
                              horizon_s=st.check_tail_s)
         warm, comp = self._warm_start(K, T0, lin, say)
         dt = 1.0 / (self.fs * self.L)
@@ -244,7 +246,7 @@ class EffectAwareDesigner:
             tried += 1
             _, v, q, _ = cache[n]
             prof = self._profile(v, q, K, T0, n, lin, solves)
-            m, _ = play_seek(self.plant, self.controller, prof, T0, settle=self.settle,
+            m, _ = play_seek(self.nlp_plant, self.controller, prof, T0, settle=self.settle,
                              horizon_s=st.check_tail_s)
             if m.peak_current_a <= self.imax * (1 + 1e-9) and m.settle_time_s * self.fs <= n + 1 + 1e-9:
                 rec = next(s for s in reversed(solves) if s.n_seek == n)
@@ -265,7 +267,7 @@ class EffectAwareDesigner:
         ``current_margin * Imax``; when it does not (a torque constant below 1, a bias the hold must
         carry), the linear design is redone for a lower current limit (cached per 1 % of Imax)."""
         limit = self.settings.current_margin * self.imax
-        comp, peak = compensate(self.plant, self.controller, lin.profile, T0)
+        comp, peak = compensate(self.nlp_plant, self.controller, lin.profile, T0)
         for _ in range(3):
             if peak <= limit * (1 + 1e-6):
                 return lin, comp
@@ -279,7 +281,7 @@ class EffectAwareDesigner:
                     robust=self.robust, family=self.problem.family))
             say(f"linear design for {K:g} tracks at {frac:.2f} Imax (the effects need the rest)")
             lin = self._derated[frac].design(K)
-            comp, peak = compensate(self.plant, self.controller, lin.profile, T0)
+            comp, peak = compensate(self.nlp_plant, self.controller, lin.profile, T0)
         return lin, comp
 
     def _profile(self, v, q, K, T0, n, lin: DesignResult, solves) -> Profile:
