@@ -175,12 +175,14 @@ def close_loop(log, plant, seeks: int | None = None) -> LoopStage:
 
 
 def design_and_bench(plant, truth, controller, cfg: DemoConfig, figures: Path) -> BenchStage:
-    """One robust designer built once, called per length; each length benched against sine and
+    """One robust designer (``seekopt design``'s default: :class:`~seekopt.design.family.Drift`, ranges
+    from the data) built once, called per length; each length benched against sine and
     windowed sine (shortest within Imax and best length) on the truth (else the identified plant)."""
     from seekopt.design.metrics import evaluate_profile
-    from seekopt.design.ocp import RobustSpec, SeekDesigner
+    from seekopt.design.family import Drift
+    from seekopt.design.ocp import SeekDesigner
     from seekopt.evaluate.bench import plot_bench, run_bench
-    designer = SeekDesigner(plant, controller, cfg.imax, cfg.settle, RobustSpec())
+    designer = SeekDesigner(plant, controller, cfg.imax, cfg.settle, Drift())    # seekopt design's default
     results, model = [], {}
     for L in cfg.lengths:
         res = run_bench(plant, controller, L, cfg.imax, cfg.settle, truth=truth, designers={"optimal": designer})

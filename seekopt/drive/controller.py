@@ -1,4 +1,4 @@
-"""Feedback controller as data: JSON cascade, multirate runtime, lifting, loop analysis.
+"""Feedback controller as data: JSON cascade, NSS preset, multirate runtime, lifting, frequency response.
 
 Conventions
 -----------
@@ -10,6 +10,9 @@ The controller maps the position error ``e = r - y`` [track] (sampled at the PES
 the slower section before it, held (zero-order hold).  ``L = max m_i`` (``fast_multiple``)
 sub-step currents are produced per PES sample.  Sections sharing a rate are realised as one
 combined state space ``x+ = A x + B v, w = C x + D v`` (series connection).
+
+The section forms are :mod:`seekopt.drive.sections`; the open-loop analysis of ``P C`` is
+:mod:`seekopt.drive.openloop` (re-exported here).
 """
 from __future__ import annotations
 
@@ -17,120 +20,17 @@ import copy
 import hashlib
 import json
 import math
-import sys
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 
 import numpy as np
-from scipy import optimize, signal
+
+from seekopt.drive.openloop import LoopAnalysis, loop_analysis, plot_loop_analysis, print_loop_analysis  # noqa: F401
+from seekopt.drive.sections import ControllerError, normalise_section, section_freqresp, section_ss, series
 
 __all__ = ["ControllerError", "Controller", "ControllerRuntime", "LoopAnalysis",
            "loop_analysis", "print_loop_analysis", "plot_loop_analysis"]
-
-_STAB_TOL = 1e-9  # poles with |p| <= 1 + tol are accepted (integrators allowed)
-
-
-class ControllerError(ValueError):
-    """Invalid controller description; the message is one line naming the source file."""
-
-
-def _arr(x, what, src):
-    try:
-        a = np.array(x, dtype=float)
-    except (TypeError, ValueError):
-        raise ControllerError(f"{src}: {what} is not numeric") from None
-    if not np.all(np.isfinite(a)):
-        raise ControllerError(f"{src}: {what} contains non-finite values")
-    return a
-
-
-def _normalise_section(sec, default_m, where):
-    """Return a canonical section dict (validated) from any accepted section form."""
-    if not isinstance(sec, dict):
-        raise ControllerError(f"{where}: section is not a JSON object")
-    kind = sec.get("kind") or ("tf" if "num" in sec or "den" in sec else
-                               "ss" if any(k in sec for k in "AaBbCcDd") else None)
-    if kind not in ("tf", "ss"):
-        raise ControllerError(f"{where}: " + (f"unknown kind {kind!r}" if kind else "missing keys") +
-                              " (need kind 'tf' with num, den or 'ss' with A, B, C, D)")
-    m = sec.get("rate_multiple", default_m)
-    if isinstance(m, bool) or not isinstance(m, (int, float)) or not float(m).is_integer() or m < 1:
-        raise ControllerError(f"{where} ({kind}): rate_multiple {m!r} is not an integer >= 1")
-    out = {"kind": kind}
-    if kind == "tf":
-        if "num" not in sec or "den" not in sec:
-            raise ControllerError(f"{where} (tf): missing key 'num' or 'den'")
-        num, den = _arr(sec["num"], "tf num", where), _arr(sec["den"], "tf den", where)
-        if num.ndim != 1 or den.ndim != 1:
-            raise ControllerError(f"{where} (tf): bad shapes, num and den must be flat lists "
-                                  "(descending powers of z)")
-        num, den = np.trim_zeros(num, "f"), np.trim_zeros(den, "f")
-        if den.size == 0:
-            raise ControllerError(f"{where} (tf): denominator is zero")
-        num = num if num.size else np.zeros(1)
-        if num.size > den.size:
-            raise ControllerError(f"{where} (tf): improper (numerator degree {num.size - 1} > "
-                                  f"denominator degree {den.size - 1})")
-        poles = np.roots(den)
-        out.update(num=num.tolist(), den=den.tolist())
-    else:
-        try:
-            A, B, C, D = (sec[k] if k in sec else sec[k.lower()] for k in "ABCD")
-        except KeyError:
-            raise ControllerError(f"{where} (ss): missing key (needs A, B, C, D)") from None
-        A = _arr(A, "ss A", where)
-        n = 0 if A.size == 0 else (A.shape[0] if A.ndim == 2 else -1)
-        A = A.reshape(n, n) if A.size == 0 else A
-        if A.ndim != 2 or A.shape != (n, n):
-            raise ControllerError(f"{where} (ss): A has shape {A.shape}, expected square")
-        B, C, D = (_arr(v, f"ss {k}", where) for v, k in ((B, "B"), (C, "C"), (D, "D")))
-        if B.shape not in ((n,), (n, 1)) or C.shape not in ((n,), (1, n)) or D.size != 1:
-            raise ControllerError(f"{where} (ss): bad shapes A {A.shape}, B {B.shape}, C {C.shape}, "
-                                  f"D {D.shape} (SISO with {n} states expected)")
-        poles = np.linalg.eigvals(A) if n else np.zeros(0)
-        out.update(A=A.tolist(), B=B.ravel().tolist(), C=C.ravel().tolist(), D=float(D.ravel()[0]))
-    if poles.size and np.max(np.abs(poles)) > 1 + _STAB_TOL:
-        raise ControllerError(f"{where} ({kind}): unstable (pole magnitude "
-                              f"{np.max(np.abs(poles)):.6g} > 1)")
-    out["rate_multiple"] = int(m)
-    if isinstance(sec.get("label"), str):
-        out["label"] = sec["label"]
-    return out
-
-
-def _section_ss(sec):
-    """(A, B[n], C[n], D) numpy realisation of one canonical section."""
-    if sec["kind"] == "tf":
-        num, den = np.asarray(sec["num"]), np.asarray(sec["den"])
-        if den.size == 1:
-            return np.zeros((0, 0)), np.zeros(0), np.zeros(0), float(num[-1] / den[0])
-        A, B, C, D = signal.tf2ss(num, den)
-        return A, B.ravel(), C.ravel(), float(D.ravel()[0])
-    return (np.asarray(sec["A"], float).reshape(len(sec["B"]), len(sec["B"])),
-            np.asarray(sec["B"], float), np.asarray(sec["C"], float), float(sec["D"]))
-
-
-def _series(s1, s2):
-    """Series connection s1 -> s2 of SISO (A, B, C, D): x = [x1; x2]."""
-    A1, B1, C1, D1 = s1
-    A2, B2, C2, D2 = s2
-    n1, n2 = A1.shape[0], A2.shape[0]
-    A = np.block([[A1, np.zeros((n1, n2))], [np.outer(B2, C1), A2]])
-    return A, np.concatenate([B1, B2 * D1]), np.concatenate([D2 * C1, C2]), D2 * D1
-
-
-def _section_freqresp(sec, z):
-    """Frequency response of one section at complex points ``z``."""
-    if sec["kind"] == "tf":
-        return np.polyval(sec["num"], z) / np.polyval(sec["den"], z)
-    A, B, C, D = _section_ss(sec)
-    n = A.shape[0]
-    if n == 0:
-        return np.full(z.shape, D, dtype=complex)
-    M = z[:, None, None] * np.eye(n) - A
-    x = np.linalg.solve(M, np.broadcast_to(B[:, None], (z.size, n, 1)))
-    return x[:, :, 0] @ C + D
 
 
 @dataclass
@@ -160,7 +60,7 @@ class Controller:
         self.sample_rate_hz = float(fs)
         if not isinstance(self.sections, (list, tuple)) or not self.sections:
             raise ControllerError(f"{src}: controller has no sections")
-        self.sections = [_normalise_section(s, 1, f"{src}: section {i}") for i, s in enumerate(self.sections, 1)]
+        self.sections = [normalise_section(s, 1, f"{src}: section {i}") for i, s in enumerate(self.sections, 1)]
         ms = [s["rate_multiple"] for s in self.sections]
         bad = [i for i in range(1, len(ms)) if ms[i] < ms[i - 1]]
         if bad:
@@ -168,9 +68,9 @@ class Controller:
                                   f"(section {bad[0] + 1}: {ms[bad[0]]} after {ms[bad[0] - 1]})")
         self._groups = []  # [(m, A, B, C, D)] one combined state space per rate
         for m in sorted(set(ms)):
-            parts = [_section_ss(s) for s in self.sections if s["rate_multiple"] == m]
+            parts = [section_ss(s) for s in self.sections if s["rate_multiple"] == m]
             for ss in parts[1:]:
-                parts[0] = _series(parts[0], ss)
+                parts[0] = series(parts[0], ss)
             self._groups.append((m,) + tuple(parts[0]))
 
     # ---------------------------------------------------------------- construction / IO
@@ -213,14 +113,14 @@ class Controller:
                 base = [base]
             if not isinstance(base, list):
                 raise ControllerError(f"{src}: '{forms[0]}' has the wrong type")
-            secs += [_normalise_section(s, 1, f"{src}: section {i}") for i, s in enumerate(base, 1)]
+            secs += [normalise_section(s, 1, f"{src}: section {i}") for i, s in enumerate(base, 1)]
         mr = d.get("multirate", [])
         if not isinstance(mr, (dict, list)):
             raise ControllerError(f"{src}: 'multirate' must be an object or a list of objects")
         for blk in ([mr] if isinstance(mr, dict) else mr):
             if not isinstance(blk, dict) or not isinstance(blk.get("sections"), list):
                 raise ControllerError(f"{src}: 'multirate' needs 'rate_multiple' and a 'sections' list")
-            secs += [_normalise_section(s, blk.get("rate_multiple", 1), f"{src}: section {i}")
+            secs += [normalise_section(s, blk.get("rate_multiple", 1), f"{src}: section {i}")
                      for i, s in enumerate(blk["sections"], len(secs) + 1)]
         return cls(str(d.get("name", "controller")), fs, secs, source=src)
 
@@ -307,7 +207,7 @@ class Controller:
         f = np.atleast_1d(np.asarray(freqs_hz, dtype=float))
         out = np.ones(f.shape, dtype=complex)
         for s in self.sections:
-            out *= _section_freqresp(s, np.exp(2j * np.pi * f / (s["rate_multiple"] * self.sample_rate_hz)))
+            out *= section_freqresp(s, np.exp(2j * np.pi * f / (s["rate_multiple"] * self.sample_rate_hz)))
         return out
 
 
@@ -349,146 +249,3 @@ class ControllerRuntime:
         v[:n] = w[:n]
         return w[n:].copy()
 
-
-# -------------------------------------------------------------------- loop analysis
-@dataclass
-class LoopAnalysis:
-    """Open-loop figures of ``L = P C`` (negative feedback, ``e = r - y``).
-
-    ``S = 1/(1+L)``, ``T = L/(1+L)``.  ``crossover_hz`` is the lowest frequency with ``|L| = 1``
-    and ``phase_margin_deg = 180 deg + angle L`` there (wrapped to [-180, 180)).  Gain crossovers
-    at lightly damped resonances above it (phase-stabilised modes) are listed in
-    ``gain_crossovers_hz`` / ``phase_margins_deg`` (same wrapping; ``min |.|`` over them is the
-    smallest phase rotation that makes L touch -1).  ``gain_margin_db`` is ``-20 log10 |L|``
-    minimised over the crossings of the negative real axis with ``|L| < 1``.
-    """
-
-    freqs_hz: np.ndarray
-    L: np.ndarray
-    S: np.ndarray
-    T: np.ndarray
-    crossover_hz: float
-    phase_margin_deg: float
-    gain_margin_db: float
-    phase_crossover_hz: float
-    sensitivity_peak: float
-    sensitivity_peak_db: float
-    sensitivity_peak_hz: float
-    gain_crossovers_hz: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    phase_margins_deg: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    controller_name: str = ""
-    controller_hash: str = ""
-
-
-def _eval(fun, f):
-    f = np.atleast_1d(np.asarray(f, dtype=float))
-    try:
-        val = np.asarray(fun(f), dtype=complex)
-        if val.shape == f.shape:
-            return val
-    except Exception:  # scalar-only callable
-        pass
-    return np.array([complex(fun(float(x))) for x in f])
-
-
-def loop_analysis(controller: Controller, plant_frf, freqs_hz, zoh: bool = True) -> LoopAnalysis:
-    """Loop figures for a continuous plant under the (single-rate-equivalent) controller.
-
-    Parameters
-    ----------
-    controller : Controller
-    plant_frf : callable
-        ``f_hz -> P(j 2 pi f)`` [track/A] (vectorised or scalar).
-    freqs_hz : array_like
-        Increasing frequency grid [Hz]; crossings are bracketed on it and refined exactly.
-    zoh : bool
-        Include the zero-order hold of the current DAC at the fast rate ``L fs`` (sampler
-        included): ``H(f) = sinc(f Tu) exp(-j pi f Tu)``, ``Tu = 1/(L fs)``.
-
-    Notes
-    -----
-    ``L(f) = P(f) H(f) C(f)`` with ``C`` from :meth:`Controller.freqresp` — an approximation
-    that ignores aliasing of the sampled loop (good well below ``fs/2``).
-    """
-    f = np.asarray(freqs_hz, dtype=float)
-    Tu = 1.0 / (controller.fast_multiple * controller.sample_rate_hz)
-
-    def Lfun(x):
-        x = np.atleast_1d(x)
-        h = np.sinc(x * Tu) * np.exp(-1j * np.pi * x * Tu) if zoh else 1.0
-        return _eval(plant_frf, x) * h * controller.freqresp(x)
-
-    Lf = Lfun(f)
-    S = 1.0 / (1.0 + Lf)
-    T = Lf * S
-
-    def roots(g, mask):  # refine each bracketing grid interval exactly
-        return [optimize.brentq(lambda x: g(Lfun(x)[0]), f[i], f[i + 1], xtol=1e-9 * f[i])
-                for i in np.nonzero(mask)[0]]
-
-    lm = np.log(np.abs(Lf))
-    wc = roots(lambda v: np.log(abs(v)), np.sign(lm[:-1]) != np.sign(lm[1:]))
-    pm = [float((np.degrees(np.angle(Lfun(x)[0])) + 360.0) % 360.0 - 180.0) for x in wc]
-    neg = (np.sign(Lf.imag[:-1]) != np.sign(Lf.imag[1:])) & (Lf.real[:-1] < 0) & (Lf.real[1:] < 0)
-    wp = [x for x in roots(lambda v: v.imag, neg) if abs(Lfun(x)[0]) < 1.0]
-    gm = [-20 * np.log10(abs(Lfun(x)[0])) for x in wp]
-    k = int(np.argmax(np.abs(S)))
-    return LoopAnalysis(
-        freqs_hz=f, L=Lf, S=S, T=T,
-        crossover_hz=wc[0] if wc else float("nan"),
-        phase_margin_deg=pm[0] if pm else float("inf"),
-        gain_crossovers_hz=np.array(wc), phase_margins_deg=np.array(pm),
-        gain_margin_db=float(min(gm)) if gm else float("inf"),
-        phase_crossover_hz=float(wp[int(np.argmin(gm))]) if gm else float("nan"),
-        sensitivity_peak=float(abs(S[k])), sensitivity_peak_db=float(20 * np.log10(abs(S[k]))),
-        sensitivity_peak_hz=float(f[k]), controller_name=controller.name,
-        controller_hash=controller.hash())
-
-
-def print_loop_analysis(res: LoopAnalysis, file=sys.stdout) -> str:
-    """Print (to ``file``, unless None) and return a text table of the loop figures."""
-    rows = [("controller", f"{res.controller_name} [{res.controller_hash}]"),
-            ("open-loop crossover", f"{res.crossover_hz:9.1f} Hz"),
-            ("phase margin", f"{res.phase_margin_deg:9.1f} deg"),
-            ("all gain crossovers", ", ".join(f"{a:.0f} Hz ({b:+.0f} deg)" for a, b in
-                                              zip(res.gain_crossovers_hz, res.phase_margins_deg))),
-            ("gain margin", f"{res.gain_margin_db:9.2f} dB at {res.phase_crossover_hz:.0f} Hz"),
-            ("sensitivity peak |S|max", f"{res.sensitivity_peak_db:9.2f} dB ({res.sensitivity_peak:.3f}) "
-                                        f"at {res.sensitivity_peak_hz:.0f} Hz"),
-            ("frequency grid", f"{res.freqs_hz[0]:.3g}-{res.freqs_hz[-1]:.4g} Hz, {res.freqs_hz.size} points")]
-    text = "\n".join(f"{k:<26}{v}" for k, v in rows)
-    if file is not None:
-        print(text, file=file)
-    return text
-
-
-def plot_loop_analysis(res: LoopAnalysis, path) -> Path:
-    """Bode plot of the open loop and |S| (cf. the paper's Fig. 8), saved as PNG at ``path``."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(7, 8), layout="constrained")
-    FigureCanvasAgg(fig)
-    ax = fig.subplots(3, 1, sharex=True)
-    f = res.freqs_hz
-    ax[0].semilogx(f, 20 * np.log10(np.abs(res.L)))
-    ax[0].axhline(0, color="k", lw=0.5)
-    ax[0].axvline(res.crossover_hz, color="r", ls="--", lw=0.8, label=f"crossover {res.crossover_hz:.0f} Hz")
-    ax[0].set_ylabel("|L| [dB]")
-    ax[0].legend(loc="upper right")
-    ax[0].set_title(f"Open loop L = P C  [{res.controller_name[:40]}]\nPM {res.phase_margin_deg:.1f} deg, "
-                    f"GM {res.gain_margin_db:.1f} dB", fontsize=10)
-    ph = np.degrees(np.unwrap(np.angle(res.L)))
-    k = min(int(np.searchsorted(f, res.crossover_hz)), f.size - 1) if np.isfinite(res.crossover_hz) else 0
-    ax[1].semilogx(f, ph - 360.0 * np.ceil(ph[k] / 360.0))  # phase at crossover in (-360, 0]
-    ax[1].axhline(-180, color="k", lw=0.5)
-    ax[1].set_ylabel("phase L [deg]")
-    ax[2].semilogx(f, 20 * np.log10(np.abs(res.S)))
-    ax[2].axhline(0, color="k", lw=0.5)
-    ax[2].set_ylabel("|S| [dB]")
-    ax[2].set_title(f"Sensitivity, peak {res.sensitivity_peak_db:.1f} dB at {res.sensitivity_peak_hz:.0f} Hz")
-    ax[2].set_xlabel("frequency [Hz]")
-    for a in ax:
-        a.grid(True, which="both", alpha=0.3)
-    fig.savefig(path, dpi=110)
-    return Path(path)

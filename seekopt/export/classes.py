@@ -109,8 +109,22 @@ def _trim_hold(ref_q: np.ndarray, hold: int) -> np.ndarray:
     return ref_q[:nz[-1] + 1 if nz.size else 0]
 
 
+class _ClassTables:
+    """What rest-to-rest and coast classes share: their two tables (``ff_q15`` int16 Q15 of Imax, ``ref_q``
+    int32 track / 2^F), the settle samples and metadata."""
+
+    @property
+    def n(self) -> int:
+        """Samples of the class (the longer of its two tables)."""
+        return max(len(self.ff_q15), len(self.ref_q))
+
+    def _tables_dict(self, **head) -> dict:
+        return {**head, "ff_q15": [int(v) for v in self.ff_q15], "ref_q": [int(v) for v in self.ref_q],
+                "settle_samples": self.settle_samples, "meta": self.meta}
+
+
 @dataclass
-class RestClass:
+class RestClass(_ClassTables):
     """Lengths ``k_lo..k_hi`` play the ``k_hi`` design scaled by ``|K| / k_hi`` (module notes)."""
 
     k_lo: int
@@ -120,17 +134,12 @@ class RestClass:
     settle_samples: int
     meta: dict = field(default_factory=dict)
 
-    @property
-    def n(self) -> int:
-        return max(len(self.ff_q15), len(self.ref_q))
-
     def to_dict(self) -> dict:
-        return {"k_lo": self.k_lo, "k_hi": self.k_hi, "ff_q15": [int(v) for v in self.ff_q15],
-                "ref_q": [int(v) for v in self.ref_q], "settle_samples": self.settle_samples, "meta": self.meta}
+        return self._tables_dict(k_lo=self.k_lo, k_hi=self.k_hi)
 
 
 @dataclass
-class CoastClass:
+class CoastClass(_ClassTables):
     """Lengths from ``k_lo`` play the velocity step of ``d_q / 2^F`` track/sample twice (module notes)."""
 
     k_lo: int
@@ -140,16 +149,11 @@ class CoastClass:
     settle_samples: int
     meta: dict = field(default_factory=dict)
 
-    @property
-    def n(self) -> int:
-        return max(len(self.ff_q15), len(self.ref_q))
-
     def coast_samples(self, tracks: int, frac_bits: int) -> int:
         return -(-(abs(int(tracks)) << frac_bits) // self.d_q)
 
     def to_dict(self) -> dict:
-        return {"k_lo": self.k_lo, "d_q": self.d_q, "ff_q15": [int(v) for v in self.ff_q15],
-                "ref_q": [int(v) for v in self.ref_q], "settle_samples": self.settle_samples, "meta": self.meta}
+        return self._tables_dict(k_lo=self.k_lo, d_q=self.d_q)
 
 
 def _rest_from(d):

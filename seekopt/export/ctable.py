@@ -21,6 +21,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from seekopt.export.classes import SeekRule
+from seekopt.export.tables import c_array
 
 __all__ = ["write_seek_c", "C_BASENAME"]
 
@@ -206,12 +207,6 @@ def _banner(rule: SeekRule) -> str:
     return "/*\n" + "".join(f" * {x}\n" for x in lines) + " */\n"
 
 
-def _array(ctype, name, values, per_line=12) -> str:
-    vals = [str(int(v)) for v in values] or ["0"]
-    body = ",\n".join("    " + ", ".join(vals[i:i + per_line]) for i in range(0, len(vals), per_line))
-    return f"static const {ctype} {name}[{len(vals)}] = {{\n{body}\n}};\n"
-
-
 def write_seek_c(rule: SeekRule, outdir, basename: str = C_BASENAME) -> list[Path]:
     """Write ``<basename>.h`` and ``<basename>.c`` into ``outdir``; returns their paths."""
     from identification.fileio import atomic_write_text as write_atomic
@@ -245,8 +240,8 @@ def write_seek_c(rule: SeekRule, outdir, basename: str = C_BASENAME) -> list[Pat
             ff += list(cl.ff_q15); ref += list(cl.ref_q)
         c.append(f"/* set {i}: {s.tpi} TPI, member {s.member}, lengths 1..{s.stroke}, "
                  f"{len(s.classes)} rest + {len(s.coasts)} coast classes, {s.table_bytes()} bytes */\n")
-        c.append(_array("int16_t", f"ff_{i}", ff))
-        c.append(_array("int32_t", f"ref_{i}", ref))
+        c.append("static " + c_array("int16_t", f"ff_{i}", ff))
+        c.append("static " + c_array("int32_t", f"ref_{i}", ref))
         c.append(f"static const seekopt_rest_class_t rest_{i}[{max(1, len(rest))}] = {{\n"
                  + ("".join(rest) or "    {0, 0, 0u, 0u, 0u, 0u, 0u}\n") + "};\n")
         c.append(f"static const seekopt_coast_class_t coast_{i}[{max(1, len(coast))}] = {{\n"

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from seekopt.export.classes import RuleError, SeekRule, frac_bits_for
-from seekopt.export.tables import ExportError
+from seekopt.export.tables import ExportError, read_sweep_json
 
 __all__ = ["resolve_physical", "sweep_stroke_mm", "build_rule", "write_seek", "write_seek_json", "write_seek_csv",
            "table_set_from_profile", "export_designer", "SEEK_BASENAME"]
@@ -41,15 +41,7 @@ SEEK_BASENAME = "seekopt_seek"
 
 def _read_sweep(results_dir):
     from seekopt.evaluate.sweep import SweepConfig
-    root = Path(results_dir)
-    if not root.is_dir():
-        raise ExportError(f"{root}: no such results folder")
-    try:
-        d = json.loads((root / "sweep.json").read_text())
-    except OSError:
-        raise ExportError(f"{root}: not a sweep results folder (no sweep.json)") from None
-    except ValueError:
-        raise ExportError(f"{root / 'sweep.json'}: not valid JSON") from None
+    root, d = read_sweep_json(results_dir)
     try:
         return SweepConfig.from_dict(d), d
     except Exception as exc:  # noqa: BLE001 - any unreadable configuration is bad input
@@ -93,8 +85,8 @@ def export_designer(spec: str, plant, controller, imax: float, settle: float):
             raise ExportError(f"bias {plant.bias_a:g} A is too large for Imax {imax:g} A")
         return SeekDesigner(SeekProblem(plant, controller, imax, settle, current_margin=margin,
                                         robust=RobustSpec() if spec == "ocp-robust" else None))
-    from seekopt.evaluate.sweep import _designer_factory
-    return _designer_factory(spec)(plant, controller, imax, settle)
+    from seekopt.evaluate.sweep_cell import designer_factory
+    return designer_factory(spec)(plant, controller, imax, settle)
 
 
 def build_rule(results_dir, *, stroke_mm=None, vmax_mps=None, budget_kib: float = 64.0, settings=None,

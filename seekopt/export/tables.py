@@ -116,6 +116,21 @@ def quantize_ref(r_track, frac_bits: int) -> np.ndarray:
 
 
 # ------------------------------------------------------------------ from a results folder
+def read_sweep_json(results_dir) -> tuple[Path, dict]:
+    """``(folder, the parsed sweep.json)`` of a sweep results folder (:mod:`seekopt.evaluate.sweep`);
+    :class:`ExportError` naming the folder when it is missing, is not a sweep folder or its
+    ``sweep.json`` is not valid JSON."""
+    root = Path(results_dir)
+    if not root.is_dir():
+        raise ExportError(f"{root}: no such results folder")
+    try:
+        return root, json.loads((root / "sweep.json").read_text())
+    except OSError:
+        raise ExportError(f"{root}: not a sweep results folder (no sweep.json)") from None
+    except ValueError:
+        raise ExportError(f"{root / 'sweep.json'}: not valid JSON") from None
+
+
 def load_tables(results_dir) -> TableSet:
     """The optimal profiles of a sweep results folder, quantised.
 
@@ -128,15 +143,7 @@ def load_tables(results_dir) -> TableSet:
     from seekopt import __version__
     from seekopt.design.profiles import Profile
     from seekopt.evaluate.sweep import cell_key, load_cells
-    root = Path(results_dir)
-    if not root.is_dir():
-        raise ExportError(f"{root}: no such results folder")
-    try:
-        cfg = json.loads((root / "sweep.json").read_text())
-    except OSError:
-        raise ExportError(f"{root}: not a sweep results folder (no sweep.json)") from None
-    except ValueError:
-        raise ExportError(f"{root / 'sweep.json'}: not valid JSON") from None
+    root, cfg = read_sweep_json(results_dir)
     cells = load_cells(root)
     profiles = []
     for tpi in cfg["tpis"]:
@@ -197,7 +204,8 @@ def _banner(ts: TableSet, prefix: str, what: str) -> str:
     return "".join(f"{prefix} {x}\n" for x in lines)
 
 
-def _c_array(ctype: str, name: str, values, per_line: int = 12) -> str:
+def c_array(ctype: str, name: str, values, per_line: int = 12) -> str:
+    """A C99 ``const`` array definition of integer ``values``, ``per_line`` to a line (at least one element)."""
     vals = [str(int(v)) for v in values] or ["0"]
     body = ",\n".join("    " + ", ".join(vals[i:i + per_line]) for i in range(0, len(vals), per_line))
     return f"const {ctype} {name}[{len(vals)}] = {{\n{body}\n}};\n"
@@ -241,8 +249,8 @@ def write_c(ts: TableSet, outdir, basename: str = BASENAME) -> list[Path]:
          f'#include "{basename}.h"\n\n']
     for i, t in enumerate(ts.tables):
         c.append(f"/* table {i}: {t.tracks} tracks at {t.tpi} TPI */\n")
-        c.append("static " + _c_array("int16_t", f"ff_{i}", t.ff_q15))
-        c.append("static " + _c_array("int32_t", f"ref_{i}", t.ref_q) + "\n")
+        c.append("static " + c_array("int16_t", f"ff_{i}", t.ff_q15))
+        c.append("static " + c_array("int32_t", f"ref_{i}", t.ref_q) + "\n")
     c.append("const seekopt_seek_t seekopt_tables[SEEKOPT_N_TABLES] = {\n")
     c += [f"    {{{t.tpi}u, {t.tracks}, {t.ff_len}u, {t.ref_len}u, ff_{i}, ref_{i}}},\n"
           for i, t in enumerate(ts.tables)]
