@@ -237,3 +237,19 @@ def test_friction_the_feedback_can_settle_is_designed_for(ctrl):
     res = EffectAwareDesigner(p, ctrl, IMAX, 0.1, None).design(200.0, 30000.0)
     assert res.metrics.settled and res.metrics.peak_current_a <= IMAX * (1 + 1e-9)
     assert res.metrics.settle_time_s < res.linear_metrics.settle_time_s
+
+
+@pytest.mark.slow
+def test_cli_bench_with_effects_plays_all_four_on_the_full_plant(tmp_path, capsys):
+    """``bench --plant AUGMENTED.json``: sine, windowed sine, the linear and the effect-aware design,
+    played from the start track on the plant with its effects."""
+    pp = tmp_path / "p.json"
+    kt_plant().to_json(pp)
+    rc = main(["bench", "--plant", str(pp), "--tracks", "-10", "--imax", str(IMAX), "--robust", "none",
+               "--start-track", "12010"])
+    out = capsys.readouterr().out
+    assert rc == 0
+    assert "seek from track 12010" in out and "full plant" in out
+    for label in ("sine", "windowed_sine", "optimal (linear)", "optimal (effects)"):
+        assert label in out
+    assert "Ipopt" in out

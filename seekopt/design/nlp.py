@@ -10,14 +10,16 @@ the linear designer (:mod:`seekopt.design.designer`) designs for another drive. 
    the band there whatever the feedforward (a friction limit cycle, run-out), :class:`DesignUnholdable`
    names the effect and the residual;
 2. the linear design (QP, :class:`~seekopt.design.designer.SeekDesigner` on ``plant.linear_part()``, the
-   same robust set) as the warm start and the first seek length;
-3. a search on the seek length ``N`` (secant steps on the NLP's worst residual, bisection) with the
-   NLP of :mod:`seekopt.design.nlp_problem` at each length: the full closed loop on CasADi symbols,
-   one NLP per size class called many times, Ipopt with the exact Hessian; the robust set enters as
-   a frozen envelope, iterated until the design meets the band on every plant of the set;
-4. every candidate played on the full plant from the start track by the one simulator
-   (:func:`seekopt.design.feasibility.play_seek`), the length stepped up until one settles by ``N``
-   within ``Imax``.
+   same robust set), passed through the plant's input map and forces along its planned run
+   (:func:`seekopt.design.feasibility.compensate`; redone at a lower current limit when the effects need
+   current the limit does not leave): the warm start and the first seek length;
+3. a search on the seek length ``N`` (secant steps on the NLP's worst residual, bisection; at most
+   ``max_nlps`` NLPs once a feasible length is known) with the NLP of :mod:`seekopt.design.nlp_problem`
+   at each length: the full closed loop on CasADi symbols, one NLP per size class called many times,
+   Ipopt with the exact Hessian; the robust set as a smooth maximum of its first-order spread;
+4. candidates played on the full plant (output effects aside: the hold check has them) from the start
+   track by the one simulator (:func:`seekopt.design.feasibility.play_seek`); the first that settles by
+   ``N`` within ``Imax`` is the design.
 
 Ipopt failures, time-outs and designs that fail the full-plant check raise :class:`NLPDesignError`:
 nothing is returned (or written) as a profile.
