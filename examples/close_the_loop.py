@@ -11,7 +11,7 @@ against the model simulated from the measured current).
 import sys
 
 from identification.estimate.identify import identify
-from identification.logs.seeklog import read_log
+from identification.logs.formats import read_log
 from identification.loop.closing import close_loop
 from identification.model.plant import ModalPlant
 from seekopt.app.demo import first_seeks, sample_log_path

@@ -12,7 +12,7 @@ from pathlib import Path
 
 from identification.estimate.figures import fig5_transfer_functions
 from identification.estimate.identify import identify
-from identification.logs.seeklog import read_log
+from identification.logs.formats import read_log
 from seekopt.app.demo import first_seeks, sample_log_path
 
 

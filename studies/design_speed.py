@@ -124,7 +124,7 @@ def main(argv=None) -> int:
         ident = ModalPlant.load(a.identified)
     else:
         from identification.estimate.identify import identify
-        from identification.logs.seeklog import read_log
+        from identification.logs.formats import read_log
         ident = identify(read_log(ROOT / "seekopt" / "data" / "sample_log.npz")).plant
     tmp = Path(tempfile.mkdtemp(prefix="design_speed_"))
     plants = tmp / "plants.json"

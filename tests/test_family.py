@@ -199,7 +199,7 @@ def test_sweep_and_export_take_a_family(tmp_path):
 
 
 def test_cli_identify_several_logs_gives_a_family(tmp_path, capsys):
-    from identification.logs.seeklog import write_log
+    from identification.logs.formats import write_log
     from seekopt.evaluate.synth import SynthConfig, synthesize
     logs = []
     for name, t, seed in (("room", 0.0, 0), ("cold", 0.04, 1)):

@@ -466,7 +466,7 @@ def bundled_plant():
     from pathlib import Path
     import seekopt
     from identification.estimate.identify import identify
-    from identification.logs.seeklog import read_log
+    from identification.logs.formats import read_log
     return identify(read_log(Path(seekopt.__file__).parent / "data" / "sample_log.npz")).plant
 
 

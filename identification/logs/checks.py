@@ -18,6 +18,8 @@ import math
 
 import numpy as np
 
+from identification.logs.schema import _SUBSTEP, LogError
+
 __all__ = ["CURRENT_UNITS", "PLAUSIBLE_PEAK_CURRENT_A", "PLAUSIBLE_K0", "CURRENT_MEAN_RTOL",
            "convert_current", "unit_warnings", "k0_warning", "check_current_columns"]
 
@@ -32,7 +34,6 @@ CURRENT_MEAN_RTOL = 1e-3
 
 
 def _substep_names(log) -> list[str]:
-    from identification.logs.seeklog import _SUBSTEP
     idx = sorted(int(m.group(1)) for k in log.extra if (m := _SUBSTEP.fullmatch(k)))
     return [f"current_sub{j}_a" for j in idx]
 
@@ -46,7 +47,6 @@ def convert_current(log, unit: str):
     unit : str
         One of :data:`CURRENT_UNITS` (``"A"`` returns ``log`` itself).
     """
-    from identification.logs.seeklog import LogError, SeekLog
     if unit not in CURRENT_UNITS:
         raise LogError(log.source or "<arrays>", f"unknown current unit {unit!r} (expected "
                                                  f"{', '.join(CURRENT_UNITS)})")
@@ -56,7 +56,7 @@ def convert_current(log, unit: str):
     subs = set(_substep_names(log))
     extra = {k: (v * f if k in subs else v) for k, v in log.extra.items()}
     meta = dict(log.metadata, current_unit_in_file=unit)
-    return SeekLog.from_arrays(log.time_s, log.current_a * f, log.position_track, log.target_track,
+    return type(log).from_arrays(log.time_s, log.current_a * f, log.position_track, log.target_track,
                                log.sample_rate_hz, track_pitch_nm=log.track_pitch_nm, metadata=meta,
                                extra=extra, source=log.source)
 
@@ -112,7 +112,6 @@ def check_current_columns(log) -> None:
     Tolerance: :data:`CURRENT_MEAN_RTOL` of the peak current (a logger's rounding passes, a
     different signal does not).  A log without sub-step columns passes.
     """
-    from identification.logs.seeklog import LogError
     names = _substep_names(log)
     if len(names) < 2:
         return

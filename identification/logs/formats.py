@@ -33,7 +33,8 @@ from typing import Any, Mapping
 import numpy as np
 
 from identification.fileio import atomic_write_bytes
-from identification.logs.seeklog import COLUMNS, MIN_SAMPLES, LogError, SeekLog, _positive, _why
+from identification.logs.schema import COLUMNS, MIN_SAMPLES, LogError, _positive, _split_entries, _why
+from identification.logs.seeklog import SeekLog
 
 # COLUMNS and MIN_SAMPLES (defined with SeekLog) are part of the file format too
 __all__ = ["COLUMNS", "FORMAT_VERSION", "MIN_SAMPLES", "read_log", "write_log"]
@@ -82,24 +83,6 @@ def _read_csv(name: str, raw: bytes) -> tuple[dict[str, Any], dict[str, Any]]:
                     what = "empty" if not c.strip() else f"not a number: {c.strip()[:40]!r}"
                     raise LogError(name, f"row {r}: {h} is {what}") from None
     return {h: data[:, j] for j, h in enumerate(header)}, meta
-
-
-def _split_entries(name: str, entries: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
-    """Separate the ``metadata`` entry (JSON string or MATLAB struct) from the columns."""
-    m = entries.pop("metadata", "{}")
-    if isinstance(m, np.ndarray) and m.dtype.kind == "U" and m.size == 1:
-        m = str(m.item())
-    if isinstance(m, str):
-        try:
-            m = json.loads(m)
-        except (ValueError, RecursionError) as exc:
-            raise LogError(name, f"metadata is not valid JSON ({_why(exc)})") from None
-    if not isinstance(m, dict):
-        raise LogError(name, "metadata entry is not a JSON object string or struct")
-    for key in ("sample_rate_hz", "track_pitch_nm"):  # tolerate top-level scalars from other tools
-        if key in entries and key not in m and np.size(entries[key]) == 1:
-            m[key] = entries.pop(key)
-    return entries, m
 
 
 def _read_npz(name: str, raw: bytes):

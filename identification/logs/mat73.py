@@ -21,6 +21,8 @@ from typing import Any
 
 import numpy as np
 
+from identification.logs.schema import LogError, _split_entries, _why
+
 __all__ = ["is_mat73", "read_mat73", "HDF5_SIGNATURE"]
 
 HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
@@ -40,7 +42,6 @@ def _attr(obj, key: str, default: Any = None) -> Any:
 
 
 def _value(h5py, name: str, path: str, obj, depth: int = 0):
-    from identification.logs.seeklog import LogError
     cls = _attr(obj, "MATLAB_class", "double")
     cls = str(cls.item() if isinstance(cls, np.ndarray) else cls)
     if isinstance(obj, h5py.Group):
@@ -74,7 +75,6 @@ def read_mat73(name: str, raw: bytes) -> tuple[dict[str, Any], dict[str, Any]]:
         h5py is not installed (the message says how to save as v7 instead), the file is not
         readable HDF5, or it holds a variable of an unsupported class.
     """
-    from identification.logs.formats import LogError, _split_entries, _why
     try:
         import h5py
     except ImportError:

@@ -15,64 +15,16 @@ exact hold; without them the current is taken as held over the whole sample peri
 """
 from __future__ import annotations
 
-import math
-import re
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
 import numpy as np
 
+from identification.logs.checks import check_current_columns
+from identification.logs.schema import (COLUMNS, MIN_SAMPLES, RATE_TOL, TIME_JITTER_TOL, LogError,  # noqa: F401
+                                        _RESERVED, _SUBSTEP, _positive, _vector)
+
 __all__ = ["COLUMNS", "MIN_SAMPLES", "LogError", "SeekLog", "Seek", "segment_seeks", "settle_windows"]
-
-COLUMNS = ("time_s", "current_a", "position_track", "target_track")
-MIN_SAMPLES = 64        #: fewest samples a log may have
-TIME_JITTER_TOL = 0.01  #: max |step - mean dt| / mean dt
-RATE_TOL = 1e-3         #: max relative disagreement of sample_rate_hz with the time column
-_RESERVED = ("seekopt-log", "sample_rate_hz", "track_pitch_nm")
-_SUBSTEP = re.compile(r"current_sub(\d+)_a")
-
-
-def _one_line(text: Any) -> str:
-    return " ".join(str(text).splitlines())
-
-
-def _why(exc: BaseException) -> str:
-    return _one_line(f"{type(exc).__name__}: {exc}")[:120]
-
-
-class LogError(ValueError):
-    """Bad seek-log input. ``str(err)`` is one line ``"<file>: <problem>"``, e.g.
-    ``"run3.csv: row 1207: current_a is NaN"``; also available as ``err.file``, ``err.problem``.
-    """
-
-    def __init__(self, file: str, problem: str | None = None):
-        if problem is None:  # also the path taken when unpickling
-            file, _, problem = str(file).partition(": ")
-        self.file, self.problem = _one_line(file), _one_line(problem)
-        super().__init__(f"{self.file}: {self.problem}")
-
-
-def _vector(name: str, key: str, value: Any) -> np.ndarray:
-    try:
-        arr = np.asarray(value)
-    except Exception as exc:  # ragged sequences and the like
-        raise LogError(name, f"column {key} is not numeric ({_why(exc)})") from None
-    if arr.dtype.kind not in "biuf":
-        raise LogError(name, f"column {key} is not numeric (dtype {arr.dtype})")
-    if arr.ndim != 1:
-        raise LogError(name, f"column {key} is not 1-D (shape {arr.shape})")
-    return arr.astype(np.float64, copy=True)
-
-
-def _positive(name: str, key: str, value: Any) -> float:
-    try:
-        value = value.item() if isinstance(value, np.ndarray) else value
-        x = float(value.strip() if isinstance(value, str) else value)
-    except (TypeError, ValueError, OverflowError):
-        raise LogError(name, f"metadata {key} is not a number: {str(value)[:40]!r}") from None
-    if not (math.isfinite(x) and x > 0):
-        raise LogError(name, f"metadata {key} must be positive and finite, got {x!r}")
-    return x
 
 
 def _bad_name(key: Any) -> bool:
@@ -227,7 +179,6 @@ class SeekLog:
 
 
 def _check_current_columns(log) -> None:
-    from identification.logs.checks import check_current_columns
     check_current_columns(log)
 
 
@@ -310,13 +261,3 @@ def settle_windows(log: SeekLog, seeks: list[Seek] | None = None) -> list[tuple[
         if not 0 <= s.start <= s.settle <= s.end <= log.n:
             raise ValueError(f"{s} does not fit a log of {log.n} samples")
     return [(s.settle, s.end) for s in seeks if s.settled]
-
-
-
-def __getattr__(name: str):
-    """``read_log`` / ``write_log`` live in :mod:`identification.logs.formats`; this keeps
-    ``from identification.logs.seeklog import read_log, write_log`` working."""
-    if name in ("read_log", "write_log"):
-        from identification.logs import formats
-        return getattr(formats, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -34,6 +34,7 @@ import numpy as np
 from scipy.linalg import expm
 
 from identification.model.effects import AmplifierLag, PivotSpringDamper
+from identification.model.linear import block_responses, block_tf  # noqa: F401  (block_tf re-exported)
 from identification.model.ops import NUMPY, casadi_ops
 
 __all__ = ["DiscretePlant", "block_tf", "zoh", "substep_hold"]
@@ -275,7 +276,6 @@ class DiscretePlant:
             Return the per-block responses ``(N, nblocks)`` (rigid body first, then each mode;
             no output effects) instead of their sum.
         """
-        from identification.model.linear import block_responses
         u, L = substep_hold(u)
         f = np.full(len(u), self.force0)
         if force is not None:
@@ -307,16 +307,6 @@ def substep_hold(u, L: int | None = None):
         return u.reshape(-1), u.shape[1]
     L = 1 if L is None else int(L)
     return (np.repeat(u, L) if L > 1 else u), L
-
-
-def block_tf(Phi: np.ndarray, c: np.ndarray, g: np.ndarray):
-    """Transfer function ``c (zI - Phi)^-1 g`` of one 2-state block of a :class:`DiscretePlant`
-    (rigid body or one mode): numerator ``[n1, n0]`` and denominator ``[1, a1, a2]`` in powers of
-    ``z^-1`` after one sample (``(n1 z + n0) / (z^2 + a1 z + a2)``)."""
-    (p00, p01), (p10, p11) = Phi
-    n1 = c[0] * g[0] + c[1] * g[1]
-    n0 = -c[0] * p11 * g[0] + c[0] * p01 * g[1] + c[1] * p10 * g[0] - c[1] * p00 * g[1]
-    return np.array([n1, n0]), np.array([1.0, -(p00 + p11), p00 * p11 - p01 * p10])
 
 
 def zoh(A: np.ndarray, B: np.ndarray, h: float):

@@ -3,7 +3,7 @@
 The stepping engine's ``Phi`` is block diagonal (rigid body, each mode) apart from the
 amplifier-lag column, so the linear part's output is a sum of 2nd-order filters, each the
 block's own recursion run by :func:`scipy.signal.lfilter`: through its transfer functions
-(:func:`~identification.model.discrete.block_tf`), or, for a slow block (poles near ``z = 1``, e.g.
+(:func:`block_tf`), or, for a slow block (poles near ``z = 1``, e.g.
 a pivot spring), in its modal coordinates ``q = V^-1 z`` (``Phi_s = V diag(lam) V^-1``, one
 first-order recursion per conjugate pair); the free rigid body ``Phi_s = [[1, dt], [0, 1]]`` as
 two running sums.  No new discretisation: the
@@ -21,12 +21,22 @@ from __future__ import annotations
 import numpy as np
 from scipy.signal import lfilter
 
-__all__ = ["block_responses", "SLOW_POLE"]
+__all__ = ["block_responses", "block_tf", "SLOW_POLE"]
 
 #: Blocks with a pole within this distance of ``z = 1`` (below ~0.05 fs / 2 pi Hz) run in modal
 #: coordinates (complex first-order recursions, accurate near ``z = 1``); the others as real
 #: 2nd-order filters (about 10x faster).
 SLOW_POLE = 0.05
+
+
+def block_tf(Phi: np.ndarray, c: np.ndarray, g: np.ndarray):
+    """Transfer function ``c (zI - Phi)^-1 g`` of one 2-state block of a :class:`DiscretePlant`
+    (rigid body or one mode): numerator ``[n1, n0]`` and denominator ``[1, a1, a2]`` in powers of
+    ``z^-1`` after one sample (``(n1 z + n0) / (z^2 + a1 z + a2)``)."""
+    (p00, p01), (p10, p11) = Phi
+    n1 = c[0] * g[0] + c[1] * g[1]
+    n0 = -c[0] * p11 * g[0] + c[0] * p01 * g[1] + c[1] * p10 * g[0] - c[1] * p00 * g[1]
+    return np.array([n1, n0]), np.array([1.0, -(p00 + p11), p00 * p11 - p01 * p10])
 
 
 def block_responses(dp, c, f, x0, hist0) -> np.ndarray:
@@ -47,7 +57,6 @@ def block_responses(dp, c, f, x0, hist0) -> np.ndarray:
     ndarray
         ``Y[k, b] = C_b x_b[k]`` (block ``b``: 0 the rigid body, then each mode), before step ``k``.
     """
-    from identification.model.discrete import block_tf
     N = len(c)
     ext = np.r_[np.asarray(hist0, float)[::-1], c]       # ext[j] = c[j - m - 1]
     # the inputs of step k (k = 0..N-2; the last step's input is not needed): c[k-m], c[k-m-1], f[k]
