@@ -337,7 +337,7 @@ def start_sweep(tmp_path, out, tracks="1,2,3,5,10,20,30,50", workers=2, design_s
 def test_sweep_workers_die_with_the_sweep(tmp_path, sig):
     """Kill only the sweep process (not its group): its pool workers and the resource tracker follow."""
     out = tmp_path / "res"
-    proc = start_sweep(tmp_path, out)
+    proc = start_sweep(tmp_path, out, design_s="5.0")     # 8 cells x 5 s on 2 workers: still running under any load
     try:
         deadline = time.time() + 90
         while time.time() < deadline and len(descendants(proc.pid)) < 3:   # 2 workers + resource tracker

@@ -240,6 +240,55 @@ def test_cli_loop(tmp_path, monkeypatch):
     assert main(["loop", str(tmp_path / "missing.csv"), "--report", str(tmp_path / "x.json")]) == 2
 
 
+def test_cli_loop_from_a_plant_writes_the_augmented_plant(tmp_path, capsys):
+    """``seekopt loop LOG --plant P --report R -o A``: no identification, ``A`` is a plant file
+    (``ModalPlant.load``) with the accepted effect and, in its meta, the log and the position range
+    the effects were fitted on; progress on stderr (one line per stage, silenced by --quiet); bad
+    input is one line, exit 2, and nothing is written."""
+    from seekopt.app.cli import main
+    eff = study.random_effect("input_delay", np.random.default_rng(19))
+    log, truth = drive_log(16, 19, runout=False, effects=[eff])
+    write_log(log, tmp_path / "a.npz")
+    study.standin_model(truth.copy(effects=[]), 19).to_json(tmp_path / "p.json")
+    args = ["loop", str(tmp_path / "a.npz"), "--plant", str(tmp_path / "p.json"), "--report", str(tmp_path / "r.json")]
+    assert main(args + ["-o", str(tmp_path / "aug.json")]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert err and all(line.startswith("loop: ") and line.endswith(" s)") for line in err)
+    assert not any("identified the plant" in line for line in err)
+    aug = ModalPlant.load(tmp_path / "aug.json")
+    assert [e.name for e in aug.effects] == ["input_delay"]
+    lo, hi = aug.meta["position_range_track"]
+    assert np.min(log.position_track) <= lo < hi <= np.max(log.position_track)
+    assert aug.meta["log"] == "a.npz"
+    assert set(json.loads((tmp_path / "aug.json").read_text())) == set(aug.to_dict())   # the plant schema only
+    assert main(args + ["-o", str(tmp_path / "aug2.json"), "--quiet"]) == 0
+    assert capsys.readouterr().err == ""
+    bad = {"missing plant": ["loop", str(tmp_path / "a.npz"), "--plant", str(tmp_path / "nope.json"),
+                             "--report", str(tmp_path / "x.json")],
+           "report folder": args[:-1] + [str(tmp_path / "no" / "x.json")],
+           "same file": args + ["-o", str(tmp_path / "r.json")],
+           "too few seeks": ["loop", str(tmp_path / "short.npz"), "--plant", str(tmp_path / "p.json"),
+                             "--report", str(tmp_path / "x.json")]}
+    write_log(log.slice(0, int(np.flatnonzero(np.diff(log.target_track))[2])), tmp_path / "short.npz")
+    before = (tmp_path / "r.json").read_text()
+    for what, argv in bad.items():
+        assert main(argv) == 2, what
+        msg = capsys.readouterr().err.strip().splitlines()
+        assert len(msg) == 1 and msg[0].startswith("seekopt loop: error:"), (what, msg)
+    assert not (tmp_path / "x.json").exists() and (tmp_path / "r.json").read_text() == before
+
+
+def test_spindle_from_metadata():
+    from identification.loop.analysis import spindle_from_metadata
+    assert spindle_from_metadata({"rpm": "7200"}, 50400.0)[0] == pytest.approx(120.0)
+    f, src = spindle_from_metadata({"sectors": "420"}, 50400.0)
+    assert f == pytest.approx(120.0) and "sectors" in src
+    assert spindle_from_metadata({"RPM": "5400 rpm", "Sectors": "300"}, 27000.0)[0] == pytest.approx(90.0)
+    f, src = spindle_from_metadata({"rpm": "7200", "sectors": "400"}, 50400.0)     # they disagree: rpm, said
+    assert f == pytest.approx(120.0) and "disagrees" in src
+    assert spindle_from_metadata({"seed": "3"}, 26400.0)[0] is None
+
+
 # ------------------------------------------------------------------------ slow
 @pytest.mark.slow
 @pytest.mark.parametrize("effect", study.EFFECTS)
@@ -315,14 +364,14 @@ def test_compensated_log_is_what_the_linear_plant_sees():
     against the compensated position) reproduces the plant with its effects -- input, force,
     structural (pivot) and output effects, evaluated by the plant's own DiscretePlant."""
     from identification.loop.closing import compensate, reidentified
-    from identification.model.effects import (CurrentSaturation, ExtraMode, Friction, InputDelay,
-                                        PeriodicDisturbance, PivotSpringDamper, PositionBias)
+    from identification.model.effects import (AmplifierLag, CurrentSaturation, ExtraMode, InputDelay,
+                                              PeriodicDisturbance, PivotSpringDamper, PositionBias)
     from identification.logs.seeklog import SeekLog
     from seekopt.drive.presets import default_truth_plant
     fs, n = 26400.0, 4000
     eff = [CurrentSaturation(0.05), PositionBias([0.0, 400.0], [0.002, -0.003]),
            PivotSpringDamper(8.0, 0.2, 100.0), InputDelay(15e-6),
-           PeriodicDisturbance(120.0, [1], [0.3], [-0.2]), ExtraMode(2000.0, 0.05, 0.01)]
+           PeriodicDisturbance(120.0, [1], [0.3], [-0.2]), ExtraMode(2000.0, 0.05, 0.01), AmplifierLag(3000.0)]
     truth = default_truth_plant().copy(effects=eff, bias_a=0.001)
     kept, absorbed = reidentified(truth)
     assert [e.name for e in absorbed] == ["extra_mode"]
@@ -338,3 +387,6 @@ def test_compensated_log_is_what_the_linear_plant_sees():
     err = np.abs(y_lin - c.position_track)[k].max()
     assert err < 0.01 * np.ptp(y[k]), (err, np.ptp(y[k]))
     assert np.abs(c.position_track - y).max() > 0.2            # the run-out is removed
+
+
+# Loop quality on the independent 50.4 kHz drive (issue 10, item 6): tests/test_loop_independent.py (slow).

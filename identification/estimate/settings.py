@@ -118,7 +118,9 @@ class RobustSettings(IdentifySettings):
         (grid of the rigid fit's delay search [samples] / [points]), ``stabilisation_max_order``
         (largest pencil order of the stabilisation diagram, in poles).
     Noise model, covariance, bias
-        ``ar_order`` (AR whitening order [samples], 0 disables), ``cov`` (``"newey-west"`` or
+        ``ar_order`` (AR whitening order [samples], 0 disables), ``noise_model_passes`` (times the
+        final stage re-fits the AR model to the whitened estimate's own output error and refines
+        again [-]), ``cov`` (``"newey-west"`` or
         ``"cluster"``), ``nw_lags`` (Newey-West lags [samples]), ``bias_from`` (``"whole-log"``:
         the rigid body's momentum balance from seek to seek over the whole log; ``"seeks"``: the
         per-seek output-error fit's).
@@ -160,6 +162,7 @@ class RobustSettings(IdentifySettings):
     ar_order: int = 32
     cov: str = "newey-west"
     nw_lags: int = 32
+    noise_model_passes: int = 1
     bias_from: str = "whole-log"
     periodic: object = "auto"
     periodic_harmonics: int = 10
@@ -192,6 +195,8 @@ class RobustSettings(IdentifySettings):
         if not (self.periodic in ("auto", None) or (isinstance(self.periodic, numbers.Integral)
                                                        and not isinstance(self.periodic, bool) and self.periodic >= 2)):
             raise ValueError(f"periodic must be 'auto', None or a period >= 2 [samples], got {self.periodic!r}")
+        if not isinstance(self.noise_model_passes, numbers.Integral) or self.noise_model_passes < 0:
+            raise ValueError(f"noise_model_passes must be a non-negative integer, got {self.noise_model_passes!r}")
         for name in ("max_modes", "max_nfev", "final_nfev", "stage_rows", "scan_fine_points"):
             if not isinstance(getattr(self, name), numbers.Integral) or getattr(self, name) < 1:
                 raise ValueError(f"{name} must be a positive integer, got {getattr(self, name)!r}")

@@ -59,6 +59,7 @@ class VarPro:
         self.starts = [a for a, _ in self.segments]
         self.proj = SegmentProjector([(a + p, b) for a, b in self.segments], offsets=[p] * len(self.segments))
         self.bias = bias_response(self.n, self.dt, self.starts)
+        self.position = np.asarray(position_track, dtype=float)
         # whitening commutes with the (time-invariant) mode filters: whiten the current once
         self.uw = self.u if self.ar is None else fir_filter(self.ar, self.u, steady=True)
         self.Z = self.Zq = None
@@ -155,6 +156,18 @@ class VarPro:
         if full:
             return -np.column_stack([D, X]), r
         return -(D - Q @ (Q.T @ D))
+
+    def output_error(self, x):
+        """The unwhitened output error ``v = y - X_raw c`` over the whole log [track], ``c`` this
+        problem's LS coefficients at ``x`` (whitened when it has a noise model), ``X_raw`` the
+        rigid, bias and mode responses to the measured current (per-segment initial conditions and
+        run-out not removed).  Its segments, projected as in :meth:`transform`, are the noise the
+        AR model must whiten at this estimate."""
+        _, c, _, _ = self.solve(x)
+        f, z, d = self.unpack(x)
+        R = zoh_rigid_response(self.u, self.dt, d * self.dt, self.starts)
+        M = mode_regressors(self.u, f, z, self.dt, d * self.dt)
+        return self.position - np.column_stack([R, self.bias, M]) @ c
 
     def fit(self, x0, lb, ub, max_nfev: int = 40):
         """Levenberg-Marquardt-like trust-region refinement of ``x`` within bounds."""

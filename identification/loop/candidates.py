@@ -54,47 +54,58 @@ def fit_input_delay(plant, data, settings):
 
 
 def fit_amplifier_lag(plant, data, settings):
-    """A first-order amplifier lag, the plant's own delay re-fitted with it (at low frequency a
-    lag of bandwidth ``b`` is a delay of ``1 / (2 pi b)``: an identification without a lag
-    absorbs it as delay), with and without the plant's heavily damped modes (``zeta >=
-    settings.damped_mode_zeta``: what a lag's roll-off looks like to a modal fit).  The variant
-    with the lowest BIC is returned; ``n_params`` = 1 - 3 x (modes dropped)."""
+    """A first-order amplifier lag: added to the plant as it is (1 parameter), or with the plant's
+    own delay re-fitted (2: at low frequency a lag of bandwidth ``b`` is a delay of
+    ``1 / (2 pi b)``, so an identification without a lag absorbs it as delay), the latter also
+    without the plant's heavily damped modes (``zeta >= settings.damped_mode_zeta``: what a lag's
+    roll-off looks like to a modal fit; 3 parameters fewer per mode).  The variant with the
+    lowest BIC is returned."""
     fs = data.log.sample_rate_hz
     sub = data.subset(settings.search_samples)
     damped = [i for i, m in enumerate(plant.modes) if m.zeta >= settings.damped_mode_zeta]
     fits, found = [], {}
-    for drop in ([], damped) if damped else ([],):
+    variants = [([], False), ([], True)] + ([(damped, True)] if damped else [])
+    for drop, free_delay in variants:
         base = plant.copy(modes=[m for i, m in enumerate(plant.modes) if i not in drop])
 
-        def make(x, base=base):
-            bw = math.exp(x[0])
-            return base.copy(delay_s=float(max(x[1], 0.0)),
-                             effects=base.effects + [AmplifierLag(float(bw))])
+        def make(x, base=base, free_delay=free_delay):
+            d = float(max(x[1], 0.0)) if free_delay else base.delay_s
+            return base.copy(delay_s=d, effects=base.effects + [AmplifierLag(float(math.exp(x[0])))])
 
-        def cost(x):       # the remaining modes' gains re-fitted with it (they shared the roll-off)
+        def cost(x, make=make):       # the remaining modes' gains re-fitted with it (they shared the roll-off)
             eng = Engine(make(x), sub)
             P = eng.project(eng.target(), *eng.base_cols())
             return lstsq(P[:, 0], P[:, 1:])[1]
-        grid = [(math.log(b), max(plant.delay_s - 1.0 / (2 * math.pi * b), 0.0))
-                for b in np.geomspace(0.02 * fs, 0.6 * fs, 10)]
+        # each bandwidth with the delay as it is (a lag the model lacks) or shortened by the
+        # lag's low-frequency delay (a lag the identification absorbed as delay)
+        delays = (lambda b: (plant.delay_s, max(plant.delay_s - 1.0 / (2 * math.pi * b), 0.0))) if free_delay \
+            else (lambda b: (plant.delay_s,))
+        grid = [(math.log(b), d) for b in np.geomspace(0.02 * fs, 0.6 * fs, 7) for d in dict.fromkeys(delays(b))]
         costs = [cost(g) for g in grid]
         x0 = np.array(grid[int(np.argmin(costs))])
-        res = minimize(cost, x0, method="Nelder-Mead",
-                       options={"xatol": 2e-3, "fatol": 1e-6 * min(costs), "maxiter": 50,
-                                "initial_simplex": np.vstack([x0, x0 + [0.3, 0.0], x0 + [0.0, 0.2 / fs]])})
-        x = res.x if res.fun < min(costs) else x0
+        if math.exp(x0[0]) > 0.5 * fs:       # best as fast as the grid goes: a delay to the data
+            continue
+        if free_delay:
+            res = minimize(cost, x0, method="Nelder-Mead",
+                           options={"xatol": 2e-3, "fatol": 1e-6 * min(costs), "maxiter": 40,
+                                    "initial_simplex": np.vstack([x0, x0 + [0.3, 0.0], x0 + [0.0, 0.2 / fs]])})
+            x = res.x if res.fun < min(costs) else x0
+        else:
+            res = minimize_scalar(lambda v: cost((v, x0[1])), bounds=(x0[0] - 0.5, x0[0] + 0.5), method="bounded",
+                                  options={"xatol": 2e-3})
+            x = np.array([res.x, x0[1]]) if res.fun < min(costs) else x0
         bw = math.exp(x[0])
         if bw > 0.5 * fs or bw < 0.021 * fs:     # faster: a fractional delay; slower: at the bound
             continue
         p = refit_base(make(x), data)
-        fits.append((1 - 3 * len(drop), p))
+        fits.append(((2 if free_delay else 1) - 3 * len(drop), p))
         found[id(p)] = (bw, len(drop))
     if not fits:
         return None
     n, p = pick_by_bic(plant, data, fits)
     bw, nd = found[id(p)]
-    note = f"delay re-fitted {1e6 * plant.delay_s:.2f} -> {1e6 * p.delay_s:.2f} us" + \
-        (f"; {nd} damped mode(s) replaced" if nd else "")
+    note = (f"delay {1e6 * plant.delay_s:.2f} -> {1e6 * p.delay_s:.2f} us" if p.delay_s != plant.delay_s
+            else "delay kept") + (f"; {nd} damped mode(s) replaced" if nd else "")
     return Fit("amplifier_lag", p, n, {"bandwidth_hz": float(bw), "delay_s": float(p.delay_s),
                                        "modes_replaced": nd}, note)
 
@@ -137,7 +148,8 @@ def fit_position_bias(plant, data, settings):
     ``settings.bias_knots`` equally spaced knots over ``data.domain`` (the positions the fit
     and validation logs visit: the table is defined wherever the model will be simulated),
     values by least squares jointly with the base, with a roughness penalty (second or third
-    differences) whose order and weight are chosen by 2-fold cross-validation over seeks
+    differences, or a smooth count of kinks) whose order and weight are chosen by 2-fold
+    cross-validation over seeks
     (:func:`identification.loop.stats.smooth_lstsq`: a smooth flex-cable bias and a table with
     kinks alike).  A force error of 1e-5 A already shows as about a track over a 10 ms window,
     so the table must interpolate between the positions where the head dwelt to the

@@ -8,8 +8,8 @@
    from rest at each seek start, re-anchored every window) and analyses the residual;
 3. fits every candidate of :data:`identification.loop.candidates.CANDIDATES` on the fit data
    (jointly with ``k0``, ``bias_a``, the declared modes' gains and the linear parameters of the
-   effects already accepted), simulates it, and accepts the one with the lowest validation RMS
-   if (a) its BIC on the fit data (output error on an effective sample size) drops by more
+   effects already accepted), simulates it, and accepts, among those that pass, the one with
+   the largest BIC drop, a candidate passing if (a) its BIC on the fit data (output error on an effective sample size) drops by more
    than ``settings.min_bic_drop``, (b) its validation RMS drops by ``min_validation_drop`` --
    or, for a re-parameterisation with fewer parameters (an amplifier lag in place of extra
    delay and a damped "mode"), does not rise -- (c) it lowers the error of at least
@@ -39,15 +39,20 @@ from identification.loop.fit_engine import Data, refit_base
 from identification.loop.residual import Residual, simulate
 from identification.loop.result import LoopResult, Step, errors, improved_fraction
 from identification.loop.settings import LoopSettings
+from identification.loop.split import inside_groups, settled_range, split_data
 from identification.loop.stats import bic, effective_n, lstsq
 from identification.loop.windows import seek_windows
 from identification.model.plant import ModalPlant
 
 __all__ = ["LoopSettings", "LoopResult", "Step", "close_loop", "evaluate", "split_data", "REPEATABLE",
-           "OUT_OF_LIBRARY", "compensate", "reidentified", "errors", "improved_fraction"]
+           "OUT_OF_LIBRARY", "compensate", "reidentified", "errors", "improved_fraction",
+           "settled_range", "inside_groups"]
 
 #: candidates that may be accepted more than once
 REPEATABLE = ("extra_mode",)
+
+#: effects that depend on the head's position (defined on the positions they were fitted on)
+POSITION_EFFECTS = ("position_bias", "torque_constant_variation", "pivot_spring_damper")
 
 #: free-form dependences along variables that no library effect models; a candidate that
 #: explains clearly less than one of them is a proxy and is not accepted
@@ -98,28 +103,6 @@ def evaluate(plant: ModalPlant, data: Data, same_log: bool = True, record: bool 
     res = simulate(plant.copy(effects=keep), data.log, data.windows, continuous=False, record=record,
                    grid=data.grid, cache=data.cache)
     return Residual(res.windows, _harmonic_nuisance(res, plant), res.y_sim, res.log, res.cmd, res.force, res.state)
-
-
-def split_data(log: SeekLog, validation: SeekLog | None = None, settings: LoopSettings | None = None):
-    """Fit and validation :class:`Data` (held-out odd seeks when no validation log) and whether
-    they share the log.  Position-dependent effects are tabulated over the positions both logs
-    visit (``Data.domain``)."""
-    st = settings or LoopSettings()
-
-    def win(lg):
-        return seek_windows(lg, st.window_s, st.min_window_samples)
-    logs = [log] + ([validation] if validation is not None else [])
-    dom = (min(float(np.min(lg.position_track)) for lg in logs), max(float(np.max(lg.position_track)) for lg in logs))
-    w = win(log)
-    if validation is not None:
-        return (Data(log, w, effect_step_s=st.effect_step_s, domain=dom),
-                Data(validation, win(validation), effect_step_s=st.effect_step_s, domain=dom), False)
-    if w.n_groups < 4:
-        raise ValueError(f"{log.source or 'log'}: needs at least 4 seeks to hold some out "
-                         f"(has {w.n_groups}); give a validation log")
-    fw, vw = w.split(2)
-    fit = Data(log, fw, effect_step_s=st.effect_step_s, domain=dom)
-    return fit, Data(log, vw, grid=fit.grid, domain=dom, cache=fit.cache), True
 
 
 # ------------------------------------------------------------------------------ state
@@ -178,11 +161,16 @@ def _reidentify(cur: _State, fit: Data, val: Data, same: bool, it: int, st: Loop
     best, steps_all, absorbed_all = cur, [], []
     plant = cur.plant
     whole = seek_windows(fit.log, st.window_s, st.min_window_samples)
+    prev = None
     for r in range(st.reidentify_rounds):
         tr = time.time()
         kept, absorbed = reidentified(plant)
         comp = compensate(plant, fit.log, simulate(plant, fit.log, whole, continuous=False, record=True,
                                                    grid=fit.grid, cache=fit.cache), st.effect_step_s)
+        if prev is not None and _same_data(prev, comp):
+            say(f"  re-identification round {r + 1}: the compensated log is the previous round's: converged")
+            break
+        prev = comp
         try:
             ident = identify(comp, method="robust", holdout_every=2 if same else 0)
         except (ValueError, np.linalg.LinAlgError, FloatingPointError) as exc:
@@ -210,6 +198,23 @@ def _reidentify(cur: _State, fit: Data, val: Data, same: bool, it: int, st: Loop
         if gain < st.reidentify_min_gain:
             break
     return best, steps_all, absorbed_all
+
+
+def _same_data(a: SeekLog, b: SeekLog, current_a: float = 1e-5, position_track: float = 2e-3) -> bool:
+    """Two compensated logs an identification cannot tell apart: currents within ``current_a`` [A]
+    (a tenth of the benchmark's force noise per sample) and positions within ``position_track``
+    [track] (a tenth of its sensor noise) everywhere."""
+    return (float(np.max(np.abs(a.input_current() - b.input_current()))) < current_a
+            and float(np.max(np.abs(a.position_track - b.position_track))) < position_track)
+
+
+def _outside(model: ModalPlant, plant: ModalPlant, out: Data | None, same: bool, rng) -> dict:
+    """Validation RMS [track] on the validation seeks left out (outside ``rng``), before and after."""
+    if out is None:
+        return {"position_range_track": list(rng), "seeks": 0, "rms_before_track": None, "rms_after_track": None}
+    return {"position_range_track": list(rng), "seeks": int(out.windows.n_groups),
+            "rms_before_track": float(evaluate(model, out, same).rms),
+            "rms_after_track": float(evaluate(plant, out, same).rms)}
 
 
 # ------------------------------------------------------------------------------ loop
@@ -290,7 +295,7 @@ def close_loop(log: SeekLog, model: ModalPlant, validation: SeekLog | None = Non
     if unknown:
         raise ValueError(f"unknown candidate(s) {unknown}; known: {sorted(CANDIDATES)}")
     ts = time.time()
-    fit, val, same = split_data(log, validation, st)
+    fit, val, same, out = split_data(log, validation, st, outside=True)
     res0 = evaluate(model, val, same, record=True)
     refit = refit_base(model, fit)       # k0, bias, mode gains re-estimated (output error, fit data)
     rv_base = evaluate(refit, val, same, record=True)
@@ -320,7 +325,7 @@ def close_loop(log: SeekLog, model: ModalPlant, validation: SeekLog | None = Non
         if not ok:
             stage("candidates", ts, f"iteration {it}: {len(tried)} candidates fitted, none accepted")
             break
-        best, rf, rv = min(ok, key=lambda t: t[0].rms_after)
+        best, rf, rv = max(ok, key=lambda t: t[0].bic_drop)     # one criterion for all: the BIC on the fit data
         best.accepted = True
         accepted.append(best.effect)
         before = cur.val.rms
@@ -347,10 +352,12 @@ def close_loop(log: SeekLog, model: ModalPlant, validation: SeekLog | None = Non
             stage("reidentify", ts, f"iteration {it}: re-identification: validation rms {prev:.4g} -> {cur.val.rms:.4g}")
         cur.rescore(fit)
     ts = time.time()
-    pos = fit.log.position_track[fit.windows.index()]
+    # the positions the fit log settled on: position-dependent effects are pinned there by the
+    # dwell (a seek only passes the positions beyond them); a seek may start and end inside
+    pos = settled_range(fit.log, fit.windows)
     plant = cur.plant.copy()
     plant.meta = dict(plant.meta, log=Path(log.source).name if log.source else None,
-                      position_range_track=[float(pos.min()), float(pos.max())],
+                      position_range_track=[pos[0], pos[1]],
                       closed_loop={"accepted": list(dict.fromkeys(e.name for e in plant.effects
                                                                   if e.name in accepted)),
                                    "validation_rms_track": [float(res0.rms), float(cur.val.rms)]})
@@ -358,7 +365,21 @@ def close_loop(log: SeekLog, model: ModalPlant, validation: SeekLog | None = Non
             "validation": "validation log" if not same else "held-out odd seeks of the log",
             "base_refit": {"kept": bool(base_refit), "k0": float(refit.k0), "bias_a": float(refit.bias_a),
                            "rms_track": float(rv_base.rms)},
+            "validation_outside_range": _outside(model, cur.plant, out, same, pos),
             "reidentified": reids, "accepted": accepted, "substeps": fit.grid.L, "effect_evaluations": fit.grid.M}
+    vo = info["validation_outside_range"]
+    n_in = len(inside_groups(val.log, val.windows, *pos))
+    if out is None and n_in < val.windows.n_groups:
+        notes.append(f"only {n_in} of {val.windows.n_groups} validation seeks stay inside the positions the fit log "
+                     f"settled on ({pos[0]:.0f}..{pos[1]:.0f} track): all are used, so a position-dependent effect is "
+                     f"judged where it can only be extrapolated; give a validation log over the same positions")
+    if vo["seeks"]:
+        notes.append(f"{vo['seeks']} validation seek(s) leave the positions the fit log settled on "
+                     f"({vo['position_range_track'][0]:.0f}..{vo['position_range_track'][1]:.0f} track; the plant is "
+                     f"defined there) and are not used: validation rms there {vo['rms_before_track']:.4g} -> "
+                     f"{vo['rms_after_track']:.4g} track"
+                     + (" (position-dependent effects extrapolated)" if any(e.name in POSITION_EFFECTS
+                                                                            for e in cur.plant.effects) else ""))
     fdata, vdata = fit.freeze(cur.plant, cur.fit), val.freeze(cur.plant, cur.val)
     analysis_after = describe_residual(cur.plant, vdata, cur.val, st)
     unexplained = unexplained_lines(cur.plant, fdata, vdata, cur.val, analysis_after, st)

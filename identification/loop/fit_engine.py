@@ -139,7 +139,8 @@ class Engine:
                 self.force = np.where(ok, force, self.force)
                 self.cmd_fine = np.where(np.repeat(ok, g.S, axis=1), cmd_fine, self.cmd_fine)
         self.key = _rigid_key(plant)
-        self.y_lin = self.lm.response(self.cmd, self.force, data.windows)
+        rig, self._flex = self.lm.response(self.cmd, self.force, data.windows, split=True, per_block=True)
+        self.y_lin = rig + self._flex.sum(axis=1)
         self.y_out = eval_outputs(plant.effects, data.log.time_s)
         self._base = None
 
@@ -174,7 +175,7 @@ class Engine:
             cols, self.setters = [self.y_lin, self.resp(force=np.ones(self.d.log.n))], []
             g, t = self.d.grid, self.d.log.time_s
             for i, m in enumerate(self.plant.modes if self.refit_modes else []):
-                cols.append(mode_column(self.plant, self, m.freq_hz, m.zeta))
+                cols.append(self._mode(i, m.gain, m.freq_hz, m.zeta))
                 self.setters.append((("mode", i), "gain", None, True))
             for e in self.plant.effects:
                 d = e.to_dict()
@@ -190,10 +191,18 @@ class Engine:
                         cols += [np.cos(ph), np.sin(ph)]
                         self.setters += [(d, "cos_track", j, False), (d, "sin_track", j, False)]
                 elif isinstance(e, ExtraMode):
-                    cols.append(mode_column(self.plant, self, e.freq_hz, e.zeta))
+                    j = len(self.plant.modes) + [x for x in self.plant.effects if isinstance(x, ExtraMode)].index(e)
+                    cols.append(self._mode(j, e.gain, e.freq_hz, e.zeta))
                     self.setters.append((d, "gain", None, True))
             self._base = cols
         return self._base
+
+    def _mode(self, j: int, gain: float, f: float, z: float) -> np.ndarray:
+        """Response of mode ``j`` (``all_modes`` order) with unit gain: its block's share of the
+        prediction divided by its gain (the block is linear in the gain)."""
+        if gain != 0.0:
+            return self._flex[:, j] / gain
+        return mode_column(self.plant, self, f, z)
 
     def residual(self) -> np.ndarray:
         """Output-error residual on the window samples [track]."""

@@ -28,6 +28,33 @@ from identification.model.plant import ModalPlant
 __all__ = ["LinearModel", "linear_key"]
 
 
+_PAD = 3   #: history columns kept before each row (the numerators have at most 4 taps)
+
+
+def _pad(x: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """Rows of ``x`` preceded by ``_PAD`` copies of their held value ``h``."""
+    return np.concatenate([np.repeat(h[:, None], _PAD, axis=1), x], axis=1)
+
+
+def _fir(b: np.ndarray, xp: np.ndarray) -> np.ndarray:
+    """Rows of a padded ``xp`` (:func:`_pad`) filtered by the FIR ``b`` (powers of z^-1)."""
+    W = xp.shape[1] - _PAD
+    out = b[0] * xp[:, _PAD:] if b[0] else np.zeros((xp.shape[0], W))
+    for j in range(1, len(b)):
+        if b[j]:
+            out += b[j] * xp[:, _PAD - j:_PAD - j + W]
+    return out
+
+
+def _fir0(b: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Rows of ``x`` filtered by the FIR ``b`` with nothing before them (an empty delay line)."""
+    out = b[0] * x
+    for j in range(1, len(b)):
+        if b[j]:
+            out[:, j:] += b[j] * x[:, :-j]
+    return out
+
+
 def _layout(windows, n: int, L: int, m: int, restart: bool) -> dict:
     """Index arrays that lay the runs (seeks) and windows of a log out as rows of 2-D arrays, so
     that each filter runs once over all of them (cached on ``windows``)."""
@@ -85,11 +112,13 @@ def _blocks(plant: ModalPlant, h: float):
         bf, _ = block_tf(P, c, dp.G_f[s])
         bl = block_tf(P, c, Phi[s, lag])[0] if lag is not None else None
         blocks.append(dict(P=P, a=a, b_cmd=np.array([0.0, bn[0], bn[1] + bo[0], bo[1]]),
-                           b_f=np.r_[0.0, bf], b_lag=None if bl is None else np.r_[0.0, bl]))
+                           b_f=np.r_[0.0, bf], b_lag=None if bl is None else np.r_[0.0, bl],
+                           zi=lfilter_zi([1.0], a) if i > 0 else None))
     lag_b = lag_a = None
     if lag is not None:
         lag_b = np.array([0.0, dp.G_new[lag], dp.G_old[lag]])
         lag_a = np.array([1.0, -Phi[lag, lag]])
+        blocks[0]["zi_lag"] = lfilter_zi([1.0], lag_a)
     off = Phi.copy()
     for i in range(nb):
         off[2 * i:2 * i + 2, 2 * i:2 * i + 2] = 0
@@ -128,11 +157,7 @@ class LinearModel:
         k0 = float(plant.k0)    # every response is proportional to k0 (see _blocks)
         self.blocks = [dict(b, b_cmd=b["b_cmd"] * k0, b_f=b["b_f"] * k0,
                             b_lag=None if b["b_lag"] is None else b["b_lag"] * k0) for b in blocks]
-        for bl in self.blocks[1:]:    # steady-state filter states for a unit input (scaled per run)
-            bl["zi_cmd"] = lfilter_zi(bl["b_cmd"], bl["a"])
-            bl["zi_f"] = lfilter_zi(bl["b_f"], bl["a"])
-            bl["zi_lag"] = None if bl["b_lag"] is None else lfilter_zi(bl["b_lag"], bl["a"])
-        self._zi_lag = None if self.lag_b is None else lfilter_zi(self.lag_b, self.lag_a)
+        self._zi_lag = blocks[0].get("zi_lag")
         self._basis = None
 
     def free_basis(self, length: int) -> np.ndarray:
@@ -158,7 +183,7 @@ class LinearModel:
         return x.reshape(-1)
 
     def response(self, cmd, force=None, windows=None, split: bool = False, with_rigid: bool = True,
-                 restart: bool = True, hist_cmd=None):
+                 restart: bool = True, hist_cmd=None, per_block: bool = False):
         """Output [track] of the linear part at each log sample (before that sample's input).
 
         Parameters
@@ -185,6 +210,9 @@ class LinearModel:
             through the whole log from steady state at the first inputs.
         hist_cmd : array, optional
             The command held before each run [A] (default: the sub-step before it).
+        per_block : bool
+            With ``split``: the flexible part as ``(n, blocks)``, one column per mode (in
+            ``ModalPlant.all_modes`` order).
         """
         n = len(cmd)
         L = self.L
@@ -197,30 +225,43 @@ class LinearModel:
         fr = None if f is None else f[idx]
         hf = None if f is None else f[A]
         xl = None
+        wp = _pad(w, hc)
         if self.lag is not None:   # lag state, steady at the history
-            xl = lfilter(self.lag_b, self.lag_a, w, axis=1, zi=self._zi_lag[None, :] * hc[:, None])[0]
+            v = _fir(self.lag_b, wp)
+            xl = lfilter([1.0], self.lag_a, v, axis=1, zi=self._zi_lag[None, :] * (self.lag_b.sum() * hc)[:, None])[0]
+        xlp = None if xl is None else _pad(xl, hc)
+        frp = None if fr is None else _pad(fr, hf)
         per_window = windows is not None
         if per_window:
             row, wcol, wvalid, target = lay["row"], lay["wcol"], lay["wvalid"], lay["target"]
         rigid = np.zeros(len(c))
-        flex = np.zeros(len(c))
+        flex = np.zeros((len(c), len(self.blocks) - 1)) if per_block else np.zeros(len(c))
         for i, bl in enumerate(self.blocks):
             if i == 0 and not with_rigid:
                 continue
-            terms = [(bl["b_cmd"], bl.get("zi_cmd"), w, hc)]
+            terms = [(bl["b_cmd"], wp, hc)]
             if xl is not None:
-                terms.append((bl["b_lag"], bl.get("zi_lag"), xl, hc))
+                terms.append((bl["b_lag"], xlp, hc))
             if fr is not None:
-                terms.append((bl["b_f"], bl.get("zi_f"), fr, hf))
-            for b, zi, x, h in terms:
-                if i > 0:
-                    y = lfilter(b, bl["a"], x, axis=1, zi=zi[None, :] * h[:, None])[0]
+                terms.append((bl["b_f"], frp, hf))
+            v = _fir(terms[0][0], terms[0][1])                      # the numerators, exactly
+            for b, xp, _ in terms[1:]:
+                v += _fir(b, xp)
+            if i > 0:                                                # in steady state before each run
+                v_ss = sum(b.sum() * h for b, _, h in terms)
+                y = lfilter([1.0], bl["a"], v, axis=1, zi=bl["zi"][None, :] * v_ss[:, None])[0]
+                if per_block:
+                    flex[lay["flat"], i - 1] += y[valid]
+                else:
                     flex[lay["flat"]] += y[valid]
-                elif not per_window:
-                    rigid[lay["flat"]] += lfilter(b, bl["a"], x, axis=1)[valid]
-                else:   # per window from rest 4 sub-steps before it (any state at its start is an anchor)
-                    xp = np.concatenate([np.repeat(h[:, None], 4, axis=1), x], axis=1)
-                    y = lfilter(b, bl["a"], xp[row, wcol], axis=1)
-                    rigid[target] += y[wvalid]
+            elif not per_window:   # the rigid block from rest with an empty delay line (history left to anchors)
+                raw = [w] + ([xl] if xl is not None else []) + ([fr] if fr is not None else [])
+                v0 = sum(_fir0(b, x) for (b, _, _), x in zip(terms, raw))
+                rigid[lay["flat"]] += lfilter([1.0], bl["a"], v0, axis=1)[valid]
+            else:   # per window from rest 4 sub-steps before it (any state at its start is an anchor)
+                vp = np.concatenate([np.zeros((len(v), 4)), v], axis=1)
+                vp[:, :4] = v[:, :1]
+                y = lfilter([1.0], bl["a"], vp[row, wcol], axis=1)
+                rigid[target] += y[wvalid]
         rigid, flex = rigid[::L], flex[::L]
         return (rigid, flex) if split else rigid + flex

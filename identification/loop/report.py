@@ -22,6 +22,16 @@ def _fmt_params(p: dict) -> str:
     return ", ".join(f"{k}={f(v)}" for k, v in p.items())
 
 
+def _range_lines(vo) -> list:
+    """The validation seeks left out (outside the positions the fit log settled on), Markdown lines."""
+    if not vo or not vo["seeks"]:
+        return []
+    lo, hi = vo["position_range_track"]
+    return [f"{vo['seeks']} validation seek(s) leave the positions the fit log settled on ({lo:.0f}..{hi:.0f} track, "
+            f"where the plant is defined) and are not used above: RMS there {vo['rms_before_track']:.4g} -> "
+            f"{vo['rms_after_track']:.4g} track.", ""]
+
+
 def markdown(R, figs=(), fig_dir: str = ".") -> str:
     """The human-readable report (figures referenced relative to ``fig_dir``)."""
     eb, ea = R.error_before, R.error_after
@@ -37,6 +47,7 @@ def markdown(R, figs=(), fig_dir: str = ".") -> str:
          "## Validation error", "", "| | RMS [track] | fit [%] |", "|---|---|---|",
          f"| before (identified model) | {eb['rms_track']:.4g} | {eb['fit_percent']:.4f} |",
          f"| after | {ea['rms_track']:.4g} | {ea['fit_percent']:.4f} |", "",
+         *_range_lines(loop.get("validation_outside_range")),
          f"Ratio after/before: {ea['rms_track'] / max(eb['rms_track'], 1e-300):.3f}. Fit % is "
          "100 (1 - |e| / |y - mean_w(y)|) with the mean per window (the seek motion dominates it).", "",
          "## Steps", "",

@@ -67,9 +67,10 @@ class LoopResult:
     """Outcome of :func:`identification.loop.closing.close_loop`.
 
     ``plant`` is the augmented plant (linear part + accepted effects; its ``meta`` records
-    the log and ``position_range_track``, the range of positions [track] the effects were
-    fitted on); ``model`` the plant the loop started from; ``error_before`` / ``error_after``
-    the validation RMS [track] and fit [%]; ``info`` how the loop ran (simulation protocol,
+    the log and ``position_range_track``, the range of positions [track] the fit log's seeks
+    settled on, where the position-dependent effects were fitted and may be used); ``model`` the plant the loop started from; ``error_before`` / ``error_after``
+    the validation RMS [track] and fit [%] on the validation seeks inside ``position_range_track``
+    (``info["validation_outside_range"]``: the seeks left out and their RMS); ``info`` how the loop ran (simulation protocol,
     validation data, base re-fit, re-identifications); ``stage_s`` the wall time per stage [s]."""
 
     plant: ModalPlant

@@ -67,13 +67,17 @@ def bic(e: np.ndarray, k: float, n_eff: float) -> float:
 
 
 def smooth_lstsq(y: np.ndarray, X: np.ndarray, n_free: int, windows,
-                 penalties=(("L2", 2), ("L2", 3), ("L1", 2)), lams=np.logspace(-6, 8, 29), irls: int = 12):
+                 penalties=(("L2", 2), ("L2", 3), ("L1", 2), ("L0", 2)), lams=np.logspace(-6, 8, 29),
+                 irls: int = 12):
     """Penalised least squares ``y ~ X theta`` whose last columns are a table along a coordinate:
     ``|y - X theta|^2 + lam P(D_k theta_table)``, ``D_k`` the k-th differences, the first
-    ``n_free`` columns unpenalised, ``P`` the sum of squares (``"L2"``: a P-spline, smooth) or of
-    absolute values (``"L1"``: trend filtering, piecewise polynomial with few kinks; solved by
-    iteratively reweighted least squares).  The penalty and ``lam`` are chosen by 2-fold
-    cross-validation over seeks (``windows.groups``, alternate seeks).
+    ``n_free`` columns unpenalised, ``P`` the sum of squares (``"L2"``: a P-spline, smooth), of
+    absolute values (``"L1"``: trend filtering, piecewise polynomial with few kinks) or a smooth
+    count of the non-zero differences (``"L0"``: ``sum d^2 / (d^2 + eps^2)``, few kinks *without
+    shrinking them*; L1 shrinks every kink by the same amount, which leaves a flex-cable bias
+    table tens of micro-amperes off on both sides of a kink -- over a 10 ms window that is a
+    track).  L1 and L0 are solved by iteratively reweighted least squares.  The penalty and
+    ``lam`` are chosen by 2-fold cross-validation over seeks (``windows.groups``, alternate seeks).
 
     Columns are scaled to unit norm and ``lam`` is relative to a typical table entry's data
     weight, so the grid ``lams`` means the same on any log.  Returns ``(theta, effective
@@ -98,12 +102,13 @@ def smooth_lstsq(y: np.ndarray, X: np.ndarray, n_free: int, windows,
         c = 1.0 / max(float(np.median(np.diag(R)[n_free:])), 1e-300)   # a typical entry's penalty ~ its data weight
         phi = np.linalg.solve(Gi + lam * c * R + ridge, bi)
         A = Gi + lam * c * R + ridge
-        if kind == "L1":
+        if kind in ("L1", "L0"):
             r0 = np.abs(D @ phi[n_free:])
             scale = float(np.median(r0)) or 1.0       # |d| / (|d| + eps) ~ L1 with weights in the L2 units
             eps = 1e-3 * max(float(r0.max()), 1e-300)
             for _ in range(irls):
-                w = scale / (np.abs(D @ phi[n_free:]) + eps)
+                d = np.abs(D @ phi[n_free:])
+                w = scale / (d + eps) if kind == "L1" else scale ** 2 / (d ** 2 + eps ** 2)
                 A = Gi + lam * c * penalty_matrix(D, w) + ridge
                 phi = np.linalg.solve(A, bi)
         return phi, A

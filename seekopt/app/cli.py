@@ -136,6 +136,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--stroke", type=float, metavar="TRACK",
                    help="full stroke [track] (default: the plant's meta stroke_mm / stroke_track); longer seeks "
                         "are refused")
+    s.add_argument("--start-track", type=float, default=None, metavar="TRACK",
+                   help="track the seek starts from (default: the middle of the plant's position_range_track, 0 "
+                        "without one); a plant with position-dependent effects never extrapolates beyond that range")
     s.add_argument("-o", "--output", required=True, metavar="PROFILE.csv", help="profile CSV to write")
     s.set_defaults(func=cmd_design)
 
@@ -150,6 +153,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--imax", type=float, required=True, metavar="A", help="current limit [A]")
     s.add_argument("--settle", type=float, default=0.1, metavar="TRACK", help="settle band half-width [track] (default 0.1)")
     s.add_argument("--figures", metavar="DIR", help="folder for Fig. 9/10-style plots (created)")
+    s.add_argument("--start-track", type=float, default=None, metavar="TRACK",
+                   help="start track of the seek on a plant with effects (default: the middle of its fitted range)")
     s.set_defaults(func=cmd_bench)
 
     s = command("loop", "close the loop: residual analysis and model augmentation")

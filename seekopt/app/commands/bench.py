@@ -20,6 +20,26 @@ def cmd_bench(args) -> int:
     truth = load_plant(args.truth) if args.truth else None
     if truth is not None:
         load_pair(args.truth, args.controller, plant=truth)
+    from seekopt.design.nlp import needs_nlp
+    if needs_nlp(plant):    # effects: played from the start track on the full plant (seekopt.evaluate.effect_bench)
+        import sys
+        from seekopt.app.commands.common import UsageError
+        from seekopt.app.commands.design import first_path
+        from seekopt.design.feasibility import StartError, resolve_start
+        from seekopt.evaluate.effect_bench import run_effect_bench
+        try:
+            start = resolve_start(plant, args.tracks, args.start_track, source=first_path(args.plant))
+        except StartError as exc:
+            raise UsageError(str(exc)) from None
+        quiet = getattr(args, "quiet", False)
+        res = run_effect_bench(plant, controller, args.tracks, args.imax, args.settle, start_track=start,
+                               truth=truth, robust=robust,
+                               progress=None if quiet else
+                               (lambda msg: print(f"seekopt bench: {msg}", file=sys.stderr, flush=True)))
+        print(f"design plant {', '.join(names)} with its effects; seek from track {start:g}, played on "
+              f"{Path(args.truth).name if args.truth else 'the design plant'} (full plant)")
+        print(format_table(res))
+        return 0
     with progress(args, f"benchmarking the {args.tracks:g}-track seek"):
         res = run_bench(plant, controller, args.tracks, args.imax, args.settle, truth=truth, figures=args.figures,
                         robust=robust, family=family)

@@ -8,7 +8,12 @@ import sys
 from seekopt.app.commands.common import UsageError, check_output_file, check_seek_args, progress
 from seekopt.app.commands.inputs import plant_family, robust_choice
 
-__all__ = ["cmd_design"]
+__all__ = ["cmd_design", "first_path"]
+
+
+def first_path(paths) -> str:
+    """The first ``--plant`` path as the user gave it (for one-line errors)."""
+    return str(paths[0] if isinstance(paths, (list, tuple)) else paths)
 
 
 def _print_predictions(res, names) -> None:
@@ -41,6 +46,14 @@ def cmd_design(args) -> int:
     check_seek_args(args)
     plant, family, controller, names = plant_family(args.plant, args.controller)
     robust = robust_choice(args, plant)
+    from seekopt.design.feasibility import StartError, resolve_start
+    try:        # start track and direction: never outside the range the plant's effects were fitted on
+        start = resolve_start(plant, args.tracks, args.start_track, source=first_path(args.plant))
+    except StartError as exc:
+        raise UsageError(str(exc)) from None
+    from seekopt.design.nlp import needs_nlp
+    if needs_nlp(plant):    # input/force effects: the effect-aware NLP (seekopt.design.nlp)
+        return _design_with_effects(args, plant, controller, robust, start, names)
     from seekopt.design.longseek import LongSeekDesigner, LongSeekError, LongSeekSpec
     for name, v in (("--vmax", args.vmax), ("--stroke", args.stroke)):
         if v is not None and not (math.isfinite(v) and v > 0):
@@ -65,7 +78,8 @@ def cmd_design(args) -> int:
         print(f"seekopt design: solver failure: {str(exc).splitlines()[0]}", file=sys.stderr)
         return 1
     prof = res.profile
-    prof.meta.update(plant_file=";".join(names), controller_name=controller.name)
+    prof.meta.update(plant_file=";".join(names), controller_name=controller.name, start_track=start,
+                     direction="outward" if args.tracks > 0 else "inward")
     prof.to_csv(args.output)
     m = res.metrics
     extra = f", {res.fallback_solves} by a fallback solver" if res.fallback_solves else ""
@@ -79,3 +93,30 @@ def cmd_design(args) -> int:
         _print_predictions(res, names)
     return 0
 
+
+
+def _design_with_effects(args, plant, controller, robust, start, names) -> int:
+    """``seekopt design`` on a plant with effects: Ipopt over the full closed loop, from ``start``
+    (:class:`seekopt.design.nlp.EffectAwareDesigner`).  Every failure (a band the loop cannot hold,
+    Ipopt, the full-plant check) is one line, exit 2, and nothing is written."""
+    from seekopt.design.nlp import DesignUnholdable, EffectAwareDesigner, NLPDesignError
+
+    def say(msg):
+        if not getattr(args, "quiet", False):
+            print(f"seekopt design: {msg}", file=sys.stderr, flush=True)
+    try:
+        res = EffectAwareDesigner(plant, controller, args.imax, args.settle, robust).design(
+            args.tracks, start, progress=say)
+    except (DesignUnholdable, NLPDesignError) as exc:
+        print(f"seekopt design: error: {first_path(args.plant)}: {str(exc).splitlines()[0]}", file=sys.stderr)
+        return 2
+    prof = res.profile
+    prof.meta.update(plant_file=";".join(names), controller_name=controller.name)
+    prof.to_csv(args.output)
+    m, lm = res.metrics, res.linear_metrics
+    print(f"wrote {args.output}: {prof.n} samples; {args.tracks:g} tracks from track {res.start_track:g} "
+          f"({prof.meta['direction']}), seek-settle {m.settle_time_s * 1e3:.3f} ms ({m.ratio_tbb:.2f} T_bb) on the "
+          f"design plant with its effects ({prof.meta['effects_in_design']}), peak current {m.peak_current_a:.3f} A; "
+          f"linear design there {lm.settle_time_s * 1e3:.3f} ms; {len(res.solves)} NLPs, Ipopt "
+          f"{res.ipopt_iterations} iterations in {res.ipopt_time_s:.2f} s")
+    return 0

@@ -21,7 +21,12 @@ def parse_effect(text: str) -> dict:
             params[k.strip()] = [float(x) for x in v.split(";")] if ";" in v else float(v)
         except ValueError:
             raise UsageError(f"--effect {text!r}: {k} is not a number") from None
-    from identification.model.effects import effect_from_dict
+    from dataclasses import fields
+    from identification.model.effects import EFFECTS, effect_from_dict
+    cls = EFFECTS.get(name.strip())
+    for f in fields(cls) if cls is not None else ():      # a list field given one value: a list of one
+        if f.type in (list, "list") and isinstance(params.get(f.name), float):
+            params[f.name] = [params[f.name]]
     try:
         return effect_from_dict({"effect": name.strip(), "params": params}).to_dict()
     except (TypeError, ValueError) as exc:

@@ -1,0 +1,353 @@
+"""Effect-aware seek design: minimum seek-settle time on a plant with effects, Ipopt over the full loop.
+
+When the plant carries input or force effects (torque constant ``Kt(x)``, position bias, friction,
+saturation; :mod:`identification.model.effects`), the closed loop is no longer a convolution and
+the linear designer (:mod:`seekopt.design.designer`) designs for another drive.  The
+:class:`EffectAwareDesigner` designs for the plant as it is:
+
+1. the start track (:func:`seekopt.design.feasibility.resolve_start`; never outside the range the
+   effects were fitted on) and the hold check at the target: when the drive's feedback cannot hold
+   the band there whatever the feedforward (a friction limit cycle, run-out), :class:`DesignUnholdable`
+   names the effect and the residual;
+2. the linear design (QP, :class:`~seekopt.design.designer.SeekDesigner` on ``plant.linear_part()``, the
+   same robust set), passed through the plant's input map and forces along its planned run
+   (:func:`seekopt.design.feasibility.compensate`; redone at a lower current limit when the effects need
+   current the limit does not leave): the warm start and the first seek length;
+3. a search on the seek length ``N`` (secant steps on the NLP's worst residual, bisection; at most
+   ``max_nlps`` NLPs once a feasible length is known) with the NLP of :mod:`seekopt.design.nlp_problem`
+   at each length: the full closed loop on CasADi symbols, one NLP per size class called many times,
+   Ipopt with the exact Hessian; the robust set as a smooth maximum of its first-order spread;
+4. candidates played on the full plant (output effects aside: the hold check has them) from the start
+   track by the one simulator (:func:`seekopt.design.feasibility.play_seek`); the first that settles by
+   ``N`` within ``Imax`` is the design.
+
+Ipopt failures, time-outs and designs that fail the full-plant check raise :class:`NLPDesignError`:
+nothing is returned (or written) as a profile.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from identification.model.plant import ModalPlant
+
+from seekopt.design import guard as _guard, qp as _qp
+from seekopt.design.designer import DesignResult, SeekDesigner
+from seekopt.design.feasibility import (compensate, hold_check, hold_current, nonlinear_effects, play_seek,
+                                        resolve_start)
+from seekopt.design.metrics import SeekMetrics
+from seekopt.design.nlp_problem import (BUILD_COUNT, NLPSettings, NLPSolve, RobustSpread, SeekNLP,
+                                        close_sample, closed_loop_sample)
+from seekopt.design.problem import SeekProblem
+from seekopt.design.profiles import Profile
+
+__all__ = ["NLPSettings", "NLPDesignError", "DesignUnholdable", "NLPSolve", "NLPDesignResult",
+           "closed_loop_sample", "close_sample", "SeekNLP", "EffectAwareDesigner", "needs_nlp", "BUILD_COUNT"]
+
+
+class NLPDesignError(RuntimeError):
+    """Ipopt failed, ran out of time, or no design passed the full-plant check (never a profile)."""
+
+
+class _Budget(Exception):
+    """The NLP budget of one design is spent (a feasible length is known)."""
+
+
+class DesignUnholdable(ValueError):
+    """The drive's feedback cannot hold the band at the target whatever the feedforward."""
+
+
+def needs_nlp(plant: ModalPlant) -> bool:
+    """True when the plant has input or force effects (the linear design would ignore them)."""
+    return bool(nonlinear_effects(plant))
+
+
+@dataclass
+class NLPDesignResult:
+    """A verified effect-aware design, played on the full plant from ``start_track``.
+
+    ``linear``: the QP design that warm-started it; ``linear_metrics``: that design played on the
+    same full plant from the same start (what ignoring the effects costs)."""
+
+    profile: Profile
+    metrics: SeekMetrics
+    start_track: float
+    settle_samples: int
+    solves: list
+    linear: DesignResult
+    linear_metrics: SeekMetrics
+    build_time_s: float = 0.0
+
+    @property
+    def ipopt_iterations(self) -> int:
+        return sum(s.iterations for s in self.solves)
+
+    @property
+    def ipopt_time_s(self) -> float:
+        return sum(s.wall_s for s in self.solves)
+
+
+# ------------------------------------------------------------------------------- designer
+class EffectAwareDesigner:
+    """Minimum seek-settle design on a plant with effects; build once, design many seeks.
+
+    Parameters
+    ----------
+    plant : ModalPlant
+        Design plant with its effects (e.g. the loop's augmented plant).  Output effects
+        (run-out) are left out of the NLP (the seek's phase to the spindle is unknown) and kept in
+        every check.
+    controller : Controller
+    imax, settle : float
+        Current limit [A] (total current, every sub-step) and settle band [track].
+    robust : Drift, RobustSpec or None
+        The design's uncertainty (as :class:`~seekopt.design.problem.SeekProblem`): the linear warm
+        start holds the band on its set, the NLP on the same set to first order around the full-plant
+        trajectory (:class:`~seekopt.design.nlp_problem.RobustSpread`).
+    settings : NLPSettings, optional
+    family : list of ModalPlant, optional
+        Further members of the drive's family (as ``SeekProblem.family``).
+    """
+
+    def __init__(self, plant: ModalPlant, controller, imax: float, settle: float = 0.1, robust=None,
+                 settings: NLPSettings | None = None, family=None):
+        self.plant, self.controller = plant, controller
+        self.imax, self.settle = float(imax), float(settle)
+        self.settings = settings or NLPSettings()
+        self.fs, self.L = float(controller.sample_rate_hz), int(controller.fast_multiple)
+        self.nlp_plant = plant.copy(effects=[e for e in plant.effects if e.kind != "output"])
+        self.robust = robust
+        self.problem = SeekProblem(plant.linear_part(), controller, imax, settle,
+                                   band_margin=self.settings.band_margin,
+                                   current_margin=self.settings.current_margin, robust=robust,
+                                   family=[f.linear_part() for f in (family or [])])
+        self.linear = SeekDesigner(self.problem)
+        self.sizes = self.problem.solver.size_classes
+        self.tail = max(int(round(self.settings.tail_s * self.fs)), 16)
+        self._nlps: dict = {}
+        self._spreads: dict = {}
+        self._maps = None
+        self._derated: dict = {}
+
+    def _nlp(self, n: int):
+        """``(SeekNLP, RobustSpread or None)`` of the size class of ``n`` samples (built on first use)."""
+        c = next((c for c in self.sizes if c >= n), None)
+        if c is None or c > self.settings.max_samples:
+            raise NLPDesignError(f"seek of {n} samples is longer than the largest NLP "
+                                 f"({self.settings.max_samples} samples)")
+        if c not in self._nlps:
+            H = c + self.tail
+            Hq = c + self.linear.tail                   # the linear designer's horizon (its guard rows)
+            need = max(H + 1 + self.tail, Hq + 1)
+            if self._maps is None or self._maps[0].horizon < need:
+                self._maps = [_qp.LoopMaps(p, self.controller, need) for p in self.linear.plants]
+            if len(self.linear.plants) > 1:
+                prev = max([k for k in self.sizes if k < c], default=0)
+                self._spreads[c] = RobustSpread(self._maps, c, H, self.settle, nmax_prev=prev)
+            guard = None
+            if self.linear.guard_bands:         # the linear designer's unmodelled-mode guard: same bands,
+                dfg = _guard.grid_spacing(self.fs, c)   # rows and horizon, on the nominal linear loop
+                rows = _guard.guard_rows(self.linear.guard_bands, self.plant.k0, self.fs, self.L, Hq * self.L,
+                                         spacing_hz=dfg, curve=self.linear.guard_curve,
+                                         extra_hz=_guard.loop_peaks(self._maps[0], self.linear.guard_bands,
+                                                                    self.fs, dfg))
+                if rows is not None:
+                    Tiu, Tir, sir = self._maps[0].current_rows(Hq, c)
+                    G = rows[0]
+                    guard = (np.hstack([G @ Tiu, G @ Tir]) / self.settle, G @ sir / self.settle)
+            self._nlps[c] = SeekNLP(self.nlp_plant, self.controller, c, self.tail, self.settle, self.settings,
+                                    spread=self._spreads.get(c), guard=guard, guard_tol=self.problem.hf_tol)
+        return self._nlps[c], self._spreads.get(c)
+
+    def design(self, tracks: float, start_track: float | None = None, progress=None,
+               linear: DesignResult | None = None) -> NLPDesignResult:
+        """Design the seek of ``tracks`` (signed) from ``start_track`` (default: middle of the fitted range).
+
+        Raises :class:`~seekopt.design.feasibility.StartError` (start/end outside the fitted range),
+        :class:`DesignUnholdable` (the loop cannot hold the band at the target), and
+        :class:`NLPDesignError` (Ipopt failed / timed out / no design passed the full-plant check).
+        ``linear``: the linear design of this seek if already made (warm start).
+        """
+        say = progress or (lambda msg: None)
+        K = float(tracks)
+        if not math.isfinite(K) or K == 0:
+            raise ValueError(f"tracks must be a non-zero number, not {tracks!r}")
+        T0 = resolve_start(self.plant, K, start_track)
+        hc = hold_check(self.plant, self.controller, T0 + K, self.settle)
+        if not hc.holds:
+            raise DesignUnholdable(hc.message())
+        t_begin = time.perf_counter()
+        st = self.settings
+        say(f"linear design (QP) for {K:g} tracks")
+        lin = self.linear.design(K) if linear is None else linear
+        # checks on the plant the NLP designs for: output effects (run-out) are the spindle's phase, not
+        # the seek's, and no feedforward removes them (the hold check above includes them)
+        lin_m, _ = play_seek(self.nlp_plant, self.controller, lin.profile, T0, settle=self.settle,
+                             horizon_s=st.check_tail_s)
+        warm, comp = self._warm_start(K, T0, lin, say)
+        dt = 1.0 / (self.fs * self.L)
+        uh = hold_current(self.nlp_plant, T0, dt)
+        dp = self.nlp_plant.discretize(dt)
+        dp.reset(T0, 0.0, current=uh)
+        x0 = np.r_[dp.x, dp.hist, np.zeros(self.controller.n_states)]
+        n0 = int(warm.settle_samples)
+        v_w, q_w = comp.current_a[:n0] / self.imax, (warm.profile.reference_track[:n0] - K) / abs(K)
+        solves: list = []
+        cache: dict = {}
+
+        def feasible(n):
+            if n in cache:
+                return cache[n][0]
+            if time.perf_counter() - t_begin > st.design_wall_s:
+                raise NLPDesignError(f"design of {K:g} tracks from track {T0:g} ran out of time "
+                                     f"({st.design_wall_s:g} s, {len(solves)} NLPs)")
+            if len(solves) >= st.max_nlps and any(ok for ok, *_ in cache.values()):
+                raise _Budget()
+            nlp, spread = self._nlp(n)
+            ok_prev = [m for m, (ok, *_ ) in cache.items() if ok]
+            m = min(ok_prev, key=lambda m: abs(m - n)) if ok_prev else n0
+            vb, qb = (cache[m][1], cache[m][2]) if ok_prev else (v_w, q_w)
+            v0 = np.r_[_stretch(vb, m, n) * (m / n) ** 2, np.zeros(nlp.N - n)]   # same distance in n samples
+            q0 = np.r_[_stretch(qb, m, n), np.zeros(nlp.N - n)]
+            rec, v, q = nlp.solve(K, T0, n, self.imax, uh, x0, v0, q0, st.band_margin, st.current_margin)
+            solves.append(rec)
+            if not rec.success and rec.status in ("Maximum_WallTime_Exceeded", "Maximum_CpuTime_Exceeded"):
+                raise NLPDesignError(f"Ipopt timed out ({st.nlp_wall_s:g} s) for {K:g} tracks in {n} samples")
+            if rec.success and spread is not None:      # the whole set on every sample, first order
+                _, e, i = nlp.rollout(x0, v, q, K, T0, self.imax, uh)
+                dE, _ = spread.spread(v, q, K, self.imax)
+                rec.residual = max(rec.residual, float(np.max(np.abs(e[n:] + np.vstack([0 * e, dE])[:, n:]))))
+            say(f"  NLP N={n}: {rec.status}, {rec.iterations} it, {rec.wall_s:.2f} s, residual {rec.residual:.3g} band, "
+                f"current slack {rec.slack:.2g}, guard excess {rec.guard_excess:.2g} band")
+            good = rec.success and rec.residual <= st.band_margin * (1 + 1e-6) and rec.slack <= st.slack_tol
+            res = rec.residual if rec.slack <= st.slack_tol else max(rec.residual, st.band_margin * (1 + rec.slack))
+            cache[n] = (good, v[:n], q[:n], res)
+            return good
+
+        try:
+            lo, hi = _search_length(feasible, lambda n: cache[n][3], n0, st.band_margin, st.max_samples)
+        except _Budget:
+            hi = min(m for m, (ok, *_ ) in cache.items() if ok)
+        if hi is None:
+            raise NLPDesignError(f"no effect-aware design of {K:g} tracks from track {T0:g} within "
+                                 f"{st.max_samples} samples ({solves[-1].status if solves else 'no NLP'})")
+        # verify on the full plant; step up on failure
+        tried = 0
+        for n in sorted(m for m, (ok, *_ ) in cache.items() if ok and m >= hi) + \
+                list(range(hi + 1, min(hi + st.check_steps, st.max_samples) + 1)):
+            if tried >= st.check_steps:
+                break
+            try:
+                if not feasible(n):
+                    continue
+            except _Budget:
+                continue
+            tried += 1
+            _, v, q, _ = cache[n]
+            prof = self._profile(v, q, K, T0, n, lin, solves)
+            m, _ = play_seek(self.nlp_plant, self.controller, prof, T0, settle=self.settle,
+                             horizon_s=st.check_tail_s)
+            if m.peak_current_a <= self.imax * (1 + 1e-9) and m.settle_time_s * self.fs <= n + 1 + 1e-9:
+                rec = next(s for s in reversed(solves) if s.n_seek == n)
+                prof.meta.update(guard_excess_band=round(rec.guard_excess, 4),
+                                 warm_start_imax_a=round(warm.profile.imax_a, 5))
+                prof.meta.update(design_status="verified", ipopt_iterations=sum(s.iterations for s in solves),
+                                 ipopt_time_s=round(sum(s.wall_s for s in solves), 3), n_nlp=len(solves))
+                return NLPDesignResult(prof, m, T0, n, solves, lin, lin_m,
+                                       sum(p.build_time_s for p in self._nlps.values()))
+            say(f"  N={n}: full-plant check failed (settle {m.settle_time_s * 1e3:.3f} ms, "
+                f"peak {m.peak_current_a:.4g} A)")
+        raise NLPDesignError(f"no effect-aware design of {K:g} tracks from track {T0:g} passed the full-plant "
+                             f"check ({tried} candidates from {hi} samples)")
+
+    def _warm_start(self, K, T0, lin, say):
+        """``(DesignResult, compensated Profile)``: the linear design whose feedforward, passed through
+        the plant's input map and forces along its planned run (:func:`compensate`), stays within
+        ``current_margin * Imax``; when it does not (a torque constant below 1, a bias the hold must
+        carry), the linear design is redone for a lower current limit (cached per 1 % of Imax)."""
+        limit = self.settings.current_margin * self.imax
+        comp, peak = compensate(self.nlp_plant, self.controller, lin.profile, T0)
+        for _ in range(3):
+            if peak <= limit * (1 + 1e-6):
+                return lin, comp
+            frac = math.floor(100.0 * lin.profile.imax_a / self.imax * limit / peak) / 100.0
+            if frac < 0.3:
+                break
+            if frac not in self._derated:
+                self._derated[frac] = SeekDesigner(SeekProblem(
+                    self.plant.linear_part(), self.controller, frac * self.imax, self.settle,
+                    band_margin=self.settings.band_margin, current_margin=self.settings.current_margin,
+                    robust=self.robust, family=self.problem.family))
+            say(f"linear design for {K:g} tracks at {frac:.2f} Imax (the effects need the rest)")
+            lin = self._derated[frac].design(K)
+            comp, peak = compensate(self.nlp_plant, self.controller, lin.profile, T0)
+        return lin, comp
+
+    def _profile(self, v, q, K, T0, n, lin: DesignResult, solves) -> Profile:
+        u = self.imax * np.asarray(v[:n], float)
+        r = K + abs(K) * np.asarray(q[:n], float)
+        meta = {"plant_hash": self.plant.hash(), "controller_hash": self.controller.hash(),
+                "design_objective": "min_settle/nlp", "solver": "ipopt", "reference": "free",
+                "start_track": T0, "direction": "outward" if K > 0 else "inward",
+                "effects_in_design": ";".join(e.name for e in self.nlp_plant.effects) or "none",
+                "robust_warm_start": self.linear.robust.to_string() if self.linear.robust else "none",
+                "band_margin": self.settings.band_margin, "current_margin": self.settings.current_margin,
+                "design_settle_samples": n, "linear_settle_samples": lin.settle_samples}
+        out = [e.name for e in self.plant.effects if e.kind == "output"]
+        if out:
+            meta["effects_not_in_design"] = ";".join(out)
+        return Profile(np.r_[u, 0.0], np.r_[r, K], self.fs, K, self.imax, self.settle, "optimal-nlp", n, meta)
+
+
+def _search_length(feasible, residual, n0: int, beta: float, n_max: int):
+    """Shortest feasible seek length: bracket from ``n0`` and close it with secant steps on the
+    residual (roughly linear in the length near ``beta``), bisection when the secant does not help.
+    Returns ``(lo, hi)``: ``lo`` infeasible (or 0), ``hi`` the shortest feasible (None if none up to
+    ``n_max``)."""
+    lo, hi, n, step = 0, None, max(int(n0), 1), max(2, int(n0) // 12)
+    seen = []
+    while True:
+        ok = feasible(n)
+        seen.append(n)
+        if ok:
+            hi = n if hi is None else min(hi, n)
+        else:
+            lo = max(lo, n)
+        if hi is not None and hi - lo <= 1:
+            return lo, hi
+        fin = [(m, residual(m)) for m in seen if math.isfinite(residual(m))]
+        guess = None
+        if len(fin) >= 2:       # secant on the two points nearest the crossing
+            a, b = sorted(fin, key=lambda mr: abs(mr[1] - beta))[:2]
+            if a[1] != b[1] and a[0] != b[0]:
+                guess = math.ceil(a[0] + (beta - a[1]) * (b[0] - a[0]) / (b[1] - a[1]))
+        if hi is None:          # nothing feasible yet: go up
+            nxt = n + step if guess is None else min(max(guess, n + 1), n + 4 * step)
+            step *= 2
+            if nxt > n_max:
+                if n >= n_max:
+                    return lo, None
+                nxt = n_max
+        elif lo == 0 and hi == min(seen):   # everything feasible so far: go down
+            nxt = hi - step if guess is None else max(min(guess, hi - 1), hi - 4 * step)
+            step *= 2
+            if nxt < 1:
+                nxt = 1
+        else:                   # bracketed: secant clipped inside, else bisection
+            nxt = (lo + hi) // 2 if guess is None else min(max(guess, lo + 1), hi - 1)
+            if nxt in seen:
+                nxt = (lo + hi) // 2
+        if nxt in seen or nxt <= lo or (hi is not None and nxt >= hi):
+            nxt = (lo + hi) // 2 if hi is not None else n + 1
+        n = nxt
+
+
+def _stretch(a: np.ndarray, m: int, n: int) -> np.ndarray:
+    """Resample a length-``m`` sequence to length ``n`` (time-stretched warm start)."""
+    a = np.asarray(a, float)[:m]
+    if m == n:
+        return a.copy()
+    return np.interp((np.arange(n) + 0.5) * m / n - 0.5, np.arange(m), a)

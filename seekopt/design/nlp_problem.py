@@ -1,0 +1,399 @@
+"""The effect-aware seek NLP: the full closed loop on CasADi symbols, built once per size class.
+
+One servo sample of the 2DOF loop (:func:`closed_loop_sample`)::
+
+    y(k)     = measure(x(k))                              plant (effects, delay line) at the servo rate
+    e(k)     = r(k) - y(k)
+    i(k, l)  = u_ff(k) + u_hold + C_l x_c(k) + D_l e(k)   l = 0..L-1 (lifted controller)
+    x       <- transition(x, hist, i(k, l))               L times: the multirate sub-step hold
+    x_c(k+1) = A x_c(k) + B e(k)
+
+``transition``/``measure`` are the plant's one stepping engine
+(:class:`identification.model.discrete.DiscretePlant`) on CasADi symbols (``casadi_ops``, smoothed
+kinks), ``A, B, C, D`` the controller's :meth:`~seekopt.drive.controller.Controller.lifted_ss` (the
+matrices its runtime steps with).
+
+The NLP for one seek length ``N`` (:class:`SeekNLP`; multiple shooting at the servo rate, every
+variable O(1): states scaled by their warm-start excursion, currents in Imax, PES in bands)::
+
+    min   w_t t^2 + rho |D v|^2 + rho_q |D q|^2 + sum_{k >= N} w_k e_k^2
+    s.t.  z(k+1) = F(z(k), v_k, q_k, i(k))                      state continuity (x = o + s z)
+          i(k, l) = loop current of sample k                    (the loop closed by an equality)
+          e_k = (y(k) - T0 - K) / band
+          e_k + hi_k <= t,  e_k + lo_k >= -t          k >= N     settle band, robust envelope
+          i_lo <= i(k, l) <= i_hi                                total current, robust envelope
+          |G_v [u_ff; r - K] + K g| <= hf_tol band              unmodelled-mode guard (the linear designer's
+                                                                  rows on the nominal linear loop)
+          v = u_ff / Imax in [-1, 1], q = (r - K) / |K| in [-2, 2], both 0 for k >= N (rest at K)
+
+The plant is driven by the current variables ``i``, so the effects' curvature couples only the
+head's position, velocity and the current: the exact Hessian is sparse and cheap.  ``N``, the
+robust envelopes and the warm start enter as bounds and parameters: the solver is built once.
+
+Robust set (:class:`RobustSpread`): the linear designer's plants differ from the nominal by their
+modes; their PES and currents are the nominal full-plant ones plus the difference of the linear
+loops' responses (first order around the effect-aware trajectory).  The difference is linear in
+``(u_ff, r)``; the designer freezes it at the current design, gives the NLP its envelope over the
+set (``hi_k = max_j d_jk``, ``lo_k = min_j d_jk``, nominal 0 included) and iterates until the
+design meets the band on every plant of the set.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import casadi as ca
+import numpy as np
+
+from identification.model.ops import SmoothingSettings, casadi_ops
+from identification.model.plant import ModalPlant
+
+import seekopt.design.qp as _qp
+
+__all__ = ["NLPSettings", "NLPSolve", "closed_loop_sample", "close_sample", "RobustSpread", "SeekNLP",
+           "BUILD_COUNT"]
+
+#: NLP constructions so far (reuse is visible here, as ``seekopt.design.qp.BUILD_COUNT`` for QPs).
+BUILD_COUNT = {"nlp": 0}
+
+
+@dataclass
+class NLPSettings:
+    """Settings of the effect-aware design (times in s, fractions of band / Imax).
+
+    ``tail_s``: time after the seek carrying band rows in the NLP (the simulator check runs
+    ``check_tail_s``); ``band_margin``/``current_margin``: ``beta``/``gamma`` as in
+    :class:`seekopt.design.problem.SeekProblem` (the unmodelled-mode guard is the problem's);
+    ``rho``, ``rho_q``, ``w_e``, ``w_t``: cost weights
+    (smoothness of ``u_ff`` and ``r``, tail energy, worst residual); ``w_slack``: weight of the elastic
+    slacks on the current and guard rows (exact penalty: the NLP is feasible at every length, a length
+    is feasible when the current slack ends below ``slack_tol``; the guard's excess is recorded -- the
+    NLP's smooth feedforward correction cannot always shape the spectrum as the QP's free samples do); ``nlp_wall_s``: Ipopt wall-time
+    limit per solve; ``design_wall_s``: for a whole design; ``check_steps``: how many candidates
+    the full-plant check tries (the seek lengthened on failure); ``max_nlps``: NLPs of the length search
+    once a feasible length is known; ``kappa_band``, ``kappa_current``:
+    sharpness of the smooth maximum over the robust set (log-sum-exp, over-estimates the maximum by
+    at most ``log(n) / kappa``: 0.02 band and 0.005 Imax for 22 plants); ``expand``: evaluate the NLP as SX (slower build, ~10x faster
+    derivatives); ``smoothing``: :class:`~identification.model.ops.SmoothingSettings` of the kinks in
+    the NLP (friction sign over 20 track/s, saturation corners 2 mA, bias-table corners 50 tracks; the
+    full-plant check is exact); ``ipopt``: extra Ipopt options."""
+
+    tail_s: float = 0.003
+    band_margin: float = 0.8
+    current_margin: float = 0.97
+    rho: float = 1e-2
+    w_slack: float = 1e3
+    slack_tol: float = 1e-4
+    rho_q: float = 1e-3
+    w_e: float = 1.0
+    w_t: float = 10.0
+    max_iter: int = 300
+    tol: float = 1e-7
+    nlp_wall_s: float = 300.0
+    design_wall_s: float = 1800.0
+    check_tail_s: float = 0.015
+    check_steps: int = 6
+    max_nlps: int = 6
+    max_samples: int = 512
+    reference_knots: int = 12
+    feedforward_knots: int = 24
+    kappa_band: float = 150.0
+    kappa_current: float = 600.0
+    expand: bool = False
+    smoothing: SmoothingSettings = field(default_factory=lambda: SmoothingSettings(
+        friction_velocity_tps=20.0, saturation_width_a=0.002, table_width_track=50.0))
+    ipopt: dict = field(default_factory=dict)
+    nlpsol: dict = field(default_factory=dict)
+
+
+@dataclass
+class NLPSolve:
+    """One Ipopt call: seek length, status, iterations, wall time [s], worst residual [band]
+    (over the robust set when there is one), the elastic slack left on the current rows [Imax] (above
+    ``slack_tol`` the length is infeasible) and the unmodelled-mode guard's excess over its tolerance
+    [band] (elastic: penalised, recorded in the profile, not a feasibility condition)."""
+
+    n_seek: int
+    status: str
+    success: bool
+    iterations: int
+    wall_s: float
+    residual: float
+    slack: float = 0.0
+    guard_excess: float = 0.0
+
+    def to_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+# ------------------------------------------------------------------------------- the loop
+def closed_loop_sample(plant: ModalPlant, controller, ops=None) -> tuple:
+    """One servo sample of the 2DOF loop on the full plant as a CasADi ``Function``.
+
+    ``F(x, hist, xc, u, r, t, i) -> (x+, hist+, xc+, y, i_loop)``: plant state and delay line
+    (:class:`DiscretePlant` at the sub-step ``1 / (L fs)``), controller state (lifted), the
+    feedforward current incl. hold ``u`` [A] and the reference ``r`` [track] of the sample, its
+    time ``t`` [s]; ``y`` the measured position at the start of the sample and ``i_loop`` the ``L``
+    sub-step currents the loop commands, ``u + C_l x_c + D_l (r - y)``.  The plant is stepped with
+    the currents ``i`` given as an input: the loop is closed by ``i = i_loop`` (an equality of the
+    NLP, or :func:`close_sample` for simulation).  Returns ``(F, (nx, nh, nc), dp)``.
+    """
+    ops = casadi_ops() if ops is None else ops
+    fs, L = float(controller.sample_rate_hz), int(controller.fast_multiple)
+    dt = 1.0 / (fs * L)
+    dp = plant.discretize(dt)
+    A, B, C, D = (np.asarray(a, dtype=float) for a in controller.lifted_ss())
+    nc = A.shape[0]
+    nx, nh = dp.n, dp.m + 1
+    x0, h0, xc = ca.SX.sym("x", nx), ca.SX.sym("hist", nh), ca.SX.sym("xc", nc)
+    u, r, t, i = ca.SX.sym("u"), ca.SX.sym("r"), ca.SX.sym("t"), ca.SX.sym("i", L)
+    y = dp.measure(x0, t, ops)
+    e = r - y
+    i_loop = u + ca.mtimes(ca.DM(C), xc) + ca.DM(D) * e
+    xcn = ca.mtimes(ca.DM(A), xc) + ca.DM(B) * e
+    x, h = x0, h0
+    for j in range(L):
+        x, h = dp.transition(x, h, i[j], t + j * dt, ops)
+    F = ca.Function("servo_sample", [x0, h0, xc, u, r, t, i], [x, h, xcn, y, i_loop],
+                    ["x", "hist", "xc", "u", "r", "t", "i"], ["x_next", "hist_next", "xc_next", "y", "i_loop"])
+    return F, (nx, nh, nc), dp
+
+
+def close_sample(F) -> ca.Function:
+    """``F`` with the loop closed (``i = i_loop``): ``(x, hist, xc, u, r, t) -> (x+, hist+, xc+, y, i)``."""
+    x, h, xc = (ca.SX.sym(n, F.size1_in(k)) for k, n in enumerate(("x", "hist", "xc")))
+    u, r, t = ca.SX.sym("u"), ca.SX.sym("r"), ca.SX.sym("t")
+    i = F(x, h, xc, u, r, t, ca.SX.zeros(F.size1_in(6)))[4]
+    return ca.Function("closed_sample", [x, h, xc, u, r, t], list(F(x, h, xc, u, r, t, i)[:4]) + [i])
+
+
+# ------------------------------------------------------------------------------- robust set
+class RobustSpread:
+    """The robust set's spread around the nominal loop, for seeks of at most ``nmax`` samples.
+
+    ``maps``: :class:`seekopt.design.qp.LoopMaps` of the set's (linear) plants, nominal first, horizon
+    above ``horizon``.  Every other plant's PES [band] and sub-step current [Imax] minus the nominal's
+    is linear in the scaled ``(v, q)``: ``dT_u Imax v + dT_r |K| q + K ds_r``.  Band rows of the NLP on
+    the samples ``band_samples`` (:meth:`band_rows`); :meth:`spread` for checks and the current envelope.
+    """
+
+    def __init__(self, maps: list, nmax: int, horizon: int, band: float, nmax_prev: int = 0):
+        N, H = int(nmax), int(horizon)
+        ks = np.arange(H + 1)
+        (Y0u, Y0r, y0), (I0u, I0r, i0) = maps[0].position_rows(ks, N), maps[0].current_rows(H, N)
+        self.DY, self.dy, self.DI, self.di = [], [], [], []
+        for m in maps[1:]:
+            (Yu, Yr, yj), (Iu, Ir, ij) = m.position_rows(ks, N), m.current_rows(H, N)
+            self.DY.append(np.hstack([Yu - Y0u, Yr - Y0r]) / band); self.dy.append((yj - y0) / band)
+            self.DI.append(np.hstack([Iu - I0u, Ir - I0r])); self.di.append(ij - i0)
+        self.n, self.N = len(maps) - 1, N
+        # robust rows of the NLP: samples that can follow a seek of this class (k > nmax_prev), every
+        # sample up to nmax + 32, every 2nd to nmax + 64, every 4th after (the slow closed-loop tail;
+        # the spread is re-checked on every sample and the simulator plays every sample); currents on
+        # every sub-step of the seek and 8 samples more (as the linear designer)
+        kb = np.concatenate([np.arange(nmax_prev + 1, N + 32), np.arange(N + 32, N + 64, 2),
+                             np.arange(N + 64, H + 1, 4)])
+        self.band_samples = np.unique(kb[(kb <= H) & (kb > nmax_prev)]).astype(int)
+        self.current_substeps = np.arange(min(H, N + 8) * maps[0].L)
+
+    def rows(self):
+        """``(DY, dy, DI, di)``: the spread on the robust rows, plant-major ``(n, rows, 2N)`` / ``(n, rows)``
+        ([band] and [A])."""
+        kb, kc = self.band_samples, self.current_substeps
+        return (np.stack([D[kb] for D in self.DY]), np.stack([d[kb] for d in self.dy]),
+                np.stack([D[kc] for D in self.DI]), np.stack([d[kc] for d in self.di]))
+
+    def spread(self, v, q, K: float, imax: float):
+        """``(dE (n, H + 1) [band], dI (n, H L) [Imax])`` for scaled feedforward ``v`` and reference ``q``."""
+        w = np.r_[imax * np.asarray(v[:self.N]), abs(K) * np.asarray(q[:self.N])]
+        dE = np.array([D @ w + K * d for D, d in zip(self.DY, self.dy)])
+        dI = np.array([(D @ w + K * d) / imax for D, d in zip(self.DI, self.di)])
+        return dE, dI
+
+
+# ------------------------------------------------------------------------------- the NLP
+class SeekNLP:
+    """The effect-aware seek NLP for seeks of at most ``nmax`` samples (one size class).
+
+    Condensed like the linear QP (:class:`seekopt.design.qp.SeekQP`): the decision vector is
+    ``[v (nmax), c (nb), t]``: the feedforward [Imax], the reference offset ``q = (r - K) / |K| =
+    q_base + B c`` (the warm start's reference plus a smooth correction on ``nb = reference_knots``
+    piecewise-linear hats over the seek) and the worst residual [band];
+    the PES and sub-step currents over ``H = nmax + tail`` samples are those of the nominal
+    full-plant loop rolled out from the rest state (``mapaccum`` of the servo-sample function; the
+    closed loop is stable, so single shooting is well conditioned).  Parameters
+    ``[K, |K|, T0, Imax, u_hold, x0, w (H + 1), q_base (nmax), B (nmax x nb)]`` (``w``: tail-energy
+    weights).  Built once
+    (``nlpsol``, Ipopt, exact Hessian) and called per ``(K, T0, N)``.
+
+    ``spread`` (:class:`RobustSpread`): the robust set, every plant ``j`` on its rows through one smooth
+    maximum per row (``smax_j s = log(sum_j exp(kappa s_j)) / kappa``, nominal ``s_0 = 0``)::
+
+        e_k + smax_j s_jk <= t,   -e_k + smax_j (-s_jk) <= t,   |i| + smax_j (+-di_j) <= gamma
+
+    with ``s_jk = D_jk [Imax v; |K| q] + K d_jk`` linear: two rows per sample whatever the set's
+    size (a row per plant and sample made Ipopt's dense KKT 5-10 times slower).
+    """
+
+    def __init__(self, plant: ModalPlant, controller, nmax: int, tail: int, band: float,
+                 settings: NLPSettings, spread: "RobustSpread | None" = None, guard=None,
+                 guard_tol: float = 0.1):
+        t_build = time.perf_counter()
+        self.settings, self.band = settings, float(band)
+        self.fs, self.L = float(controller.sample_rate_hz), int(controller.fast_multiple)
+        ops = casadi_ops(settings.smoothing)
+        F, (nx, nh, nc), self.dp = closed_loop_sample(plant, controller, ops)
+        self.dims, nz = (nx, nh, nc), nx + nh + nc
+        N, H, L = int(nmax), int(nmax) + int(tail), self.L
+        self.N, self.H, self.nz = N, H, nz
+        xr, ur = ca.SX.sym("x", nz), ca.SX.sym("u", 3)
+        xn, hn, xcn, yr, ir = close_sample(F)(xr[:nx], xr[nx:nx + nh], xr[nx + nh:], ur[0], ur[1], ur[2])
+        step = ca.Function("loop_step", [xr, ur], [ca.vertcat(xn, hn, xcn), yr, ir])
+        self._rollout = step.mapaccum("rollout", H)
+        self._measure = ca.Function("measure_x", [xr, ur[2]], [self.dp.measure(xr[:nx], ur[2], ops)])
+        Kp, aK, T0, imax, uh = (ca.MX.sym(n) for n in ("K", "absK", "T0", "imax", "uhold"))
+        x0, w = ca.MX.sym("x0", nz), ca.MX.sym("w", H + 1)
+        nb = self.nb = min(N, int(settings.reference_knots))
+        nv = self.nv = min(N, int(settings.feedforward_knots))
+        A, CV, C, tt = ca.MX.sym("a"), ca.MX.sym("cv", nv), ca.MX.sym("c", nb), ca.MX.sym("t")
+        sc, sg = ca.MX.sym("s_cur"), ca.MX.sym("s_guard")   # elastic slacks: the NLP is always feasible
+        vb, Bv = ca.MX.sym("v_base", N), ca.MX.sym("Bv", N, nv)
+        qb, Bq = ca.MX.sym("q_base", N), ca.MX.sym("B", N, nb)
+        V = (1 + A) * vb + ca.mtimes(Bv, CV)  # feedforward: the warm start scaled plus a smooth correction
+        Q = qb + ca.mtimes(Bq, C)             # reference offset: a base plus a smooth correction
+        U = ca.vertcat(ca.horzcat(imax * V.T + uh, ca.repmat(uh, 1, H - N)),
+                       ca.horzcat(T0 + Kp + aK * Q.T, ca.repmat(T0 + Kp, 1, H - N)),
+                       ca.DM(np.arange(H) / self.fs).T)
+        X, Y, Iloop = self._rollout(x0, U)
+        E = (ca.vertcat(Y.T, self._measure(X[:, H - 1], H / self.fs)) - T0 - Kp) / band   # PES [band]
+        I = ca.vec(Iloop) / imax                                     # sub-step currents [Imax], (k, l)
+        rows, self.blocks = [], {}
+
+        def add(name, expr, samples=None):
+            self.blocks[name] = (sum(r.numel() for r in rows), expr.numel(),
+                                 np.arange(expr.numel()) if samples is None else np.asarray(samples, int))
+            rows.append(expr)
+
+        add("ff", V)
+        add("pes_hi", E - tt)
+        add("pes_lo", E + tt)
+        add("cur_hi", I - sc)
+        add("cur_lo", I + sc)
+        self.guard_tol = float(guard_tol)
+        if guard is not None:               # residual of unmodelled modes [band]: linear rows on (u_ff, r)
+            Gm, g0 = (np.asarray(a, dtype=float) for a in guard)
+            z = ca.mtimes(ca.DM(Gm), ca.vertcat(imax * V, aK * Q)) + Kp * ca.DM(g0)
+            add("hf_hi", z - sg)
+            add("hf_lo", z + sg)
+        if spread is not None and spread.n:     # every plant of the set: smooth max over the set per row
+            DY, dy, DI, di = spread.rows()
+            wy = ca.vertcat(imax * V, aK * Q)
+            kb, kc = spread.band_samples, spread.current_substeps
+            for name, D, d, base, kap, scale in (("rob_e", DY, dy, E[kb.tolist()], settings.kappa_band, 1.0),
+                                                 ("rob_i", DI, di, I[kc.tolist()], settings.kappa_current, imax)):
+                n, m = D.shape[0], D.shape[1]
+                Sp = ca.reshape(ca.mtimes(ca.DM(D.reshape(n * m, -1, order="C")), wy) + Kp * ca.DM(d.ravel()),
+                                m, n).T / scale                       # (plants, rows)
+                Sp = ca.vertcat(ca.MX.zeros(1, m), Sp)                # the nominal plant: spread 0
+                xs = ca.SX.sym("s", n + 1)
+                lse = ca.Function("smooth_max", [xs], [ca.logsumexp(kap * xs) / kap]).map(m)
+                up, dn = lse(Sp).T, lse(-Sp).T
+                if name == "rob_e":
+                    add("rob_hi", base + up - tt, kb)                # e + max_j s_j <= t
+                    add("rob_lo", -base + dn - tt, kb)               # -e + max_j (-s_j) <= t
+                else:
+                    add("rob_ihi", base + up - sc, kc)               # i + max_j di_j <= gamma
+                    add("rob_ilo", -base + dn - sc, kc)
+        f = (settings.w_t * tt ** 2 + settings.rho * ca.sumsqr(ca.diff(ca.vertcat(0, V, 0)))
+             + settings.rho_q * ca.sumsqr(ca.diff(ca.vertcat(0, Q, 0))) + ca.dot(w, E ** 2)
+             + settings.w_slack * (sc + sg))
+        x = ca.vertcat(A, CV, C, tt, sc, sg)
+        p = ca.vertcat(Kp, aK, T0, imax, uh, x0, w, vb, ca.vec(Bv), qb, ca.vec(Bq))
+        g = ca.vertcat(*rows)
+        self.nx_dec, self.ng = x.numel(), g.numel()
+        ipopt = {"print_level": 0, "sb": "yes", "max_iter": settings.max_iter, "tol": settings.tol,
+                 "acceptable_tol": 1e-5, "acceptable_iter": 10, "mu_strategy": "adaptive",
+                 "max_wall_time": float(settings.nlp_wall_s), "hessian_approximation": "exact"}
+        ipopt.update(settings.ipopt)
+        self.solver = ca.nlpsol("seek_nlp", "ipopt", {"x": x, "f": f, "g": g, "p": p},
+                                {"ipopt": ipopt, "print_time": False, "error_on_fail": False,
+                                 "expand": bool(settings.expand), **settings.nlpsol})
+        BUILD_COUNT["nlp"] += 1
+        self.build_time_s = time.perf_counter() - t_build
+
+    # ------------------------------------------------------------------ per call
+    def rollout(self, x0, v, q, K, T0, imax, uh):
+        """The loop on the NLP's own model: states ``(nz, H + 1)`` (from ``x0``), PES [band]
+        ``(H + 1,)`` and sub-step currents ``(L, H)`` [A] for scaled inputs ``v, q``."""
+        N, H = self.N, self.H
+        u = np.full(H, uh); u[:N] += imax * np.asarray(v)[:N]
+        r = np.full(H, T0 + K); r[:N] += abs(K) * np.asarray(q)[:N]
+        X, Y, I = self._rollout(x0, np.vstack([u, r, np.arange(H) / self.fs]))
+        X = np.column_stack([x0, np.asarray(X)])
+        yH = float(self._measure(X[:, -1], H / self.fs))
+        return X, (np.r_[np.asarray(Y).ravel(), yH] - T0 - K) / self.band, np.asarray(I)
+
+    def solve(self, K: float, T0: float, nseek: int, imax: float, uh: float, x0: np.ndarray,
+              v0: np.ndarray, q0: np.ndarray, beta: float, gamma: float):
+        """Solve for a seek of ``K`` tracks from ``T0`` in ``nseek`` samples from ``v0, q0`` (scaled
+        feedforward and reference, length ``nmax``).  Returns ``(NLPSolve, v, q)``; ``NLPSolve.residual`` is ``t*`` [band]."""
+        N, H, st = self.N, self.H, self.settings
+        if not 0 < nseek <= N:
+            raise ValueError(f"seek length {nseek} outside 1..{N}")
+        live = (np.arange(N) < nseek).astype(float)
+        v0, q0 = live * np.clip(v0[:N], -1, 1), live * np.clip(q0[:N], -2, 2)
+        ne = H + 1
+        w = np.zeros(ne); w[nseek:] = st.w_e / (ne - nseek)
+        p = np.r_[K, abs(K), T0, imax, uh, x0, w]
+        _, e0, _ = self.rollout(x0, v0, q0, K, T0, imax, uh)
+        B, Bv = _hat_basis(nseek, N, self.nb), _hat_basis(nseek, N, self.nv)
+        p = np.r_[p, v0, Bv.T.ravel(), q0, B.T.ravel()]
+        nd = 1 + self.nv + self.nb
+        xw = np.r_[np.zeros(nd), float(np.max(np.abs(e0[nseek:]))), 0.1, 0.1]
+        lbx = np.r_[-0.5, np.full(nd - 1, -np.inf), 0.0, 0.0, 0.0]
+        ubx = np.r_[0.5, np.full(nd - 1, np.inf), np.inf, np.inf, np.inf]
+        lbg, ubg = np.full(self.ng, -np.inf), np.full(self.ng, np.inf)
+        for name, (off, n, smp) in self.blocks.items():
+            sl = slice(off, off + n)
+            if name in ("pes_hi", "rob_hi", "rob_lo"):  # ... - t <= 0 after the seek
+                ubg[sl] = np.where(smp >= nseek, 0.0, np.inf)
+            elif name == "pes_lo":                      # e + t >= 0 after the seek
+                lbg[sl] = np.where(smp >= nseek, 0.0, -np.inf)
+            elif name == "ff":
+                lbg[sl], ubg[sl] = -live, live
+            elif name in ("cur_hi", "rob_ihi", "rob_ilo"):
+                ubg[sl] = gamma
+            elif name == "cur_lo":
+                lbg[sl] = -gamma
+            elif name == "hf_hi":
+                ubg[sl] = self.guard_tol
+            elif name == "hf_lo":
+                lbg[sl] = -self.guard_tol
+        t_start = time.perf_counter()
+        sol = self.solver(x0=xw, p=p, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+        wall = time.perf_counter() - t_start
+        stats = self.solver.stats()
+        xo = np.asarray(sol["x"], dtype=float).ravel()
+        status = str(stats.get("return_status", "?"))
+        ok = (bool(stats.get("success", False)) or status == "Solved_To_Acceptable_Level") \
+            and bool(np.all(np.isfinite(xo)))
+        self.last_slacks = (float(xo[nd + 1]), float(xo[nd + 2]))      # (current [Imax], guard [band])
+        slack = float(xo[nd + 1]) if ok else math.inf
+        guard_excess = float(xo[nd + 2]) if ok else math.inf
+        rec = NLPSolve(int(nseek), status, ok, int(stats.get("iter_count", 0)), wall,
+                       float(xo[nd]) if ok else math.inf, slack, guard_excess)
+        v = (1 + xo[0]) * v0 + Bv @ xo[1:1 + self.nv]
+        return rec, v, q0 + B @ xo[1 + self.nv:nd]
+
+
+def _hat_basis(n: int, nmax: int, nb: int) -> np.ndarray:
+    """``(nmax, nb)`` piecewise-linear hat functions on ``nb`` knots spread over samples ``0..n-1``
+    (zero from ``n`` on): the smooth correction of the reference."""
+    k = np.arange(nmax, dtype=float)
+    knots = np.linspace(0.0, n - 1.0, nb) if nb > 1 else np.array([0.0])
+    h = (knots[1] - knots[0]) if nb > 1 else 1.0
+    B = np.maximum(0.0, 1.0 - np.abs(k[:, None] - knots[None, :]) / h)
+    B[n:] = 0.0
+    return B
+

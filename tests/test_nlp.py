@@ -1,0 +1,255 @@
+"""Effect-aware design (seekopt.design.nlp) and its feasibility checks (seekopt.design.feasibility).
+
+Fast tests: the symbolic closed loop agrees with the one simulator, start-track and range rules,
+the hold current, the at-rest hold check (a friction limit cycle is named, a small friction is
+not), the CLI's one-line exits (nothing written), a short nominal design through the CLI that
+beats the linear design on a drive with torque-constant variation.  Study-size designs (robust set,
+K = 200, friction that the feedback can settle) are marked slow.
+"""
+import json
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from identification.model.effects import Friction, PositionBias, TorqueConstantVariation
+from identification.model.ops import NUMPY
+from seekopt.app.cli import main
+from seekopt.design import nlp as nlpmod
+from seekopt.design.feasibility import (StartError, hold_check, hold_current, play_seek,
+                                        position_dependent_effects, resolve_start)
+from seekopt.design.nlp import (DesignUnholdable, EffectAwareDesigner, NLPDesignError, NLPSettings,
+                                closed_loop_sample, close_sample, needs_nlp)
+from seekopt.design.profiles import Profile
+from seekopt.drive.controller import Controller
+from seekopt.drive.presets import default_truth_plant
+from seekopt.drive.simulator import simulate_2dof
+
+IMAX = 0.3
+RANGE = [0.0, 60000.0]
+
+
+@pytest.fixture(scope="module")
+def ctrl():
+    return Controller.nss()
+
+
+def _plant(*effects, rng=True):
+    meta = {"position_range_track": RANGE} if rng else {}
+    return default_truth_plant().copy(effects=list(effects), meta=meta)
+
+
+def kt_plant(rng=True):
+    """Torque constant +-20 % over the range (0.8 at track 0, 1.2 at 60000)."""
+    return _plant(TorqueConstantVariation([0.2], 30000.0, 30000.0), rng=rng)
+
+
+# ----------------------------------------------------------------------------- the loop, symbolically
+def test_symbolic_loop_matches_the_simulator(ctrl):
+    """The NLP's closed loop (plant engine on CasADi symbols + lifted controller) reproduces
+    simulate_2dof sample by sample on a plant with Kt(x) and a bias (no kink: exact)."""
+    plant = kt_plant()
+    fs, L = ctrl.sample_rate_hz, ctrl.fast_multiple
+    F, (nx, nh, nc), dp = closed_loop_sample(plant, ctrl)
+    step = close_sample(F)
+    T0, n = 15000.0, 120
+    uh = hold_current(plant, T0, 1 / (fs * L))
+    rng = np.random.default_rng(1)
+    u = np.r_[0.2 * rng.standard_normal(40), np.zeros(n - 40)] + uh
+    r = T0 + np.r_[np.cumsum(rng.uniform(0, 5, 40)), np.full(n - 40, 100.0)]
+    sim = simulate_2dof(plant, ctrl, u, r, position0=T0, current0=uh, record_substeps=True)
+    dp.reset(T0, 0.0, current=uh)
+    x, h, xc = dp.x.copy(), dp.hist.copy(), np.zeros(nc)
+    for k in range(n):
+        x, h, xc, y, i = (np.asarray(a, float).ravel() for a in step(x, h, xc, u[k], r[k], k / fs))
+        assert y[0] == pytest.approx(sim.true_position_track[k], abs=1e-7)
+        assert np.allclose(i, sim.current_sub_a[k], atol=1e-9)
+
+
+def test_loop_sample_is_one_function_for_numbers_and_symbols(ctrl):
+    F, (nx, nh, nc), dp = closed_loop_sample(kt_plant(), ctrl)
+    assert F.n_in() == 7 and F.size1_in(6) == ctrl.fast_multiple
+    assert nx == dp.n and nc == ctrl.n_states
+    sym = F(*[ca.SX.sym(f"a{k}", F.size1_in(k)) for k in range(7)])
+    assert all(isinstance(s, ca.SX) for s in sym)
+
+
+# ----------------------------------------------------------------------------- start track and range
+def test_start_track_default_and_range_errors():
+    p = kt_plant()
+    assert position_dependent_effects(p) == ["torque_constant_variation"]
+    assert resolve_start(p, 200.0) == 30000.0                       # middle of the fitted range
+    assert resolve_start(p, -200.0, 12000.0) == 12000.0             # inward seek
+    with pytest.raises(StartError, match="outside the range"):
+        resolve_start(p, 200.0, 59900.0)                            # end beyond the range
+    with pytest.raises(StartError, match="start at track -5"):
+        resolve_start(p, 200.0, -5.0)
+    with pytest.raises(StartError, match="no position_range_track"):
+        resolve_start(kt_plant(rng=False), 200.0)
+    free = _plant(Friction(0.001), rng=False)                       # no position dependence: 0
+    assert position_dependent_effects(free) == [] and resolve_start(free, 200.0) == 0.0
+    bias = _plant(PositionBias([0.0, 60000.0], [-0.03, 0.03]))
+    assert position_dependent_effects(bias) == ["position_bias"]
+    assert needs_nlp(bias) and not needs_nlp(default_truth_plant())
+
+
+def test_hold_current_balances_bias_through_the_torque_constant():
+    p = kt_plant()
+    dt = 1 / 52800
+    for T in (0.0, 30000.0, 60000.0):
+        kt = 1 + 0.2 * (T - 30000.0) / 30000.0
+        assert hold_current(p, T, dt) == pytest.approx(-p.bias_a / kt, rel=1e-9)
+    b = _plant(PositionBias([0.0, 60000.0], [-0.03, 0.03]))
+    assert hold_current(b, 45000.0, dt) == pytest.approx(-(b.bias_a + 0.015), rel=1e-9)
+
+
+def test_play_seek_starts_at_rest_at_the_start_track(ctrl):
+    p = kt_plant()
+    fs = ctrl.sample_rate_hz
+    prof = Profile(np.zeros(4), np.zeros(4), fs, 1e-9, IMAX, 0.1, "none", 0)
+    m, sim = play_seek(p, ctrl, prof, 12000.0, horizon_s=0.002)
+    assert np.max(np.abs(sim.true_position_track - 12000.0)) < 1e-6   # the hold holds it (rounding at 12000 tracks)
+    assert m.settle_time_s == 0.0
+
+
+# ----------------------------------------------------------------------------- what no feedforward can fix
+def test_hold_check_names_a_friction_limit_cycle(ctrl):
+    big = _plant(Friction(0.03), rng=False)
+    hc = hold_check(big, ctrl, 200.0, 0.1)
+    assert not hc.holds and hc.culprits == ["friction"] and hc.residual_track > 0.1
+    assert "friction" in hc.message() and f"{hc.residual_track:.3g} track" in hc.message()
+    small = hold_check(_plant(Friction(0.0005), rng=False), ctrl, 200.0, 0.1)
+    assert small.holds and small.residual_track < 0.1
+
+
+def test_cli_unholdable_friction_exits_2_without_a_profile(tmp_path, capsys):
+    pp = tmp_path / "p.json"
+    _plant(Friction(0.03), rng=False).to_json(pp)
+    out = tmp_path / "prof.csv"
+    rc = main(["design", "--plant", str(pp), "--tracks", "200", "--imax", str(IMAX), "-o", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and not out.exists()
+    assert "friction" in err[-1] and "residual" in err[-1] and "cannot hold" in err[-1]
+
+
+def test_cli_start_outside_range_exits_2_first(tmp_path, capsys):
+    pp = tmp_path / "p.json"
+    kt_plant().to_json(pp)
+    out = tmp_path / "prof.csv"
+    rc = main(["design", "--plant", str(pp), "--tracks", "-300", "--imax", str(IMAX), "--start-track", "100",
+               "-o", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and not out.exists() and len(err) == 1
+    assert str(pp) in err[0] and "outside the range" in err[0]
+
+
+def test_nlp_failures_are_never_profiles(tmp_path, capsys, monkeypatch):
+    """An Ipopt failure / time-out / failed full-plant check surfaces as NLPDesignError and exit 2."""
+    pp = tmp_path / "p.json"
+    kt_plant().to_json(pp)
+    out = tmp_path / "prof.csv"
+
+    def boom(self, *a, **k):
+        raise NLPDesignError("Ipopt timed out (0.01 s) for 10 tracks in 16 samples")
+    monkeypatch.setattr(EffectAwareDesigner, "design", boom)
+    rc = main(["design", "--plant", str(pp), "--tracks", "10", "--imax", str(IMAX), "-o", str(out)])
+    assert rc == 2 and not out.exists()
+    assert "Ipopt timed out" in capsys.readouterr().err.strip().splitlines()[-1]
+
+
+def test_timeout_raises(ctrl):
+    des = EffectAwareDesigner(kt_plant(), ctrl, IMAX, 0.1, None,
+                              NLPSettings(nlp_wall_s=1e-3, tail_s=0.002))
+    with pytest.raises(NLPDesignError, match="timed out"):
+        des.design(10.0, 12000.0)
+
+
+def test_failed_full_plant_check_is_not_returned(ctrl, monkeypatch):
+    des = EffectAwareDesigner(kt_plant(), ctrl, IMAX, 0.1, None, NLPSettings(tail_s=0.002, check_steps=1))
+    real = nlpmod.play_seek
+
+    def pessimist(plant, controller, prof, start, **kw):       # every NLP design "overshoots Imax"
+        m, sim = real(plant, controller, prof, start, **kw)
+        if prof.kind == "optimal-nlp":
+            m.peak_current_a = 2 * IMAX
+        return m, sim
+    monkeypatch.setattr(nlpmod, "play_seek", pessimist)
+    with pytest.raises(NLPDesignError, match="full-plant check"):
+        des.design(10.0, 12000.0)
+
+
+# ----------------------------------------------------------------------------- designs
+def test_cli_nominal_design_on_torque_constant_drive(tmp_path, capsys, ctrl):
+    """K = 10 from 20 % of the range (Kt 0.88): the effect-aware design settles within 1.3x the
+    effect-free drive's design and well before the linear design played on that drive; the CSV
+    records start track, direction and Ipopt figures; never over Imax on the full plant."""
+    p = kt_plant()
+    pp = tmp_path / "p.json"
+    p.to_json(pp)
+    out = tmp_path / "prof.csv"
+    rc = main(["design", "--plant", str(pp), "--tracks", "-10", "--imax", str(IMAX), "--robust", "none",
+               "--start-track", "12010", "-o", str(out)])
+    text = capsys.readouterr()
+    assert rc == 0, text.err
+    prof = Profile.from_csv(out)
+    assert prof.meta["start_track"] == "12010.0" and prof.meta["direction"] == "inward"
+    assert int(prof.meta["ipopt_iterations"]) > 0 and float(prof.meta["ipopt_time_s"]) > 0
+    assert "torque_constant_variation" in prof.meta["effects_in_design"]
+    m, sim = play_seek(p, ctrl, prof, 12010.0)
+    assert m.peak_current_a <= IMAX * (1 + 1e-9) and m.settled
+    from seekopt.design.ocp import SeekDesigner
+    lin = SeekDesigner(p.linear_part(), ctrl, IMAX, 0.1).design(-10.0)
+    free, _ = play_seek(p.linear_part(), ctrl, lin.profile, 12010.0)
+    on_kt, _ = play_seek(p, ctrl, lin.profile, 12010.0)
+    assert m.settle_time_s <= 1.3 * free.settle_time_s
+    assert m.settle_time_s < on_kt.settle_time_s
+    assert "Ipopt" in text.out and "iterations" in text.out
+
+
+def test_linear_plant_keeps_the_qp_path(tmp_path, capsys):
+    pp = tmp_path / "p.json"
+    default_truth_plant().to_json(pp)
+    before = nlpmod.BUILD_COUNT["nlp"]
+    out = tmp_path / "prof.csv"
+    assert main(["design", "--plant", str(pp), "--tracks", "10", "--imax", str(IMAX), "--robust", "none",
+                 "-o", str(out)]) == 0
+    assert nlpmod.BUILD_COUNT["nlp"] == before
+    meta = Profile.from_csv(out).meta
+    assert meta["start_track"] == "0.0" and meta["direction"] == "outward" and meta["solver"] == "daqp"
+
+
+@pytest.mark.slow
+def test_robust_design_kt_k200_meets_target(ctrl):
+    p = kt_plant()
+    from seekopt.design.ocp import RobustSpec
+    des = EffectAwareDesigner(p, ctrl, IMAX, 0.1, RobustSpec())
+    for T0 in (12000.0, 48000.0):
+        res = des.design(200.0, T0)
+        free, _ = play_seek(p.linear_part(), ctrl, res.linear.profile, T0)
+        assert res.metrics.settle_time_s <= 1.3 * free.settle_time_s
+        assert res.metrics.peak_current_a <= IMAX * (1 + 1e-9)
+        assert res.linear_metrics.settle_time_s > 2 * res.metrics.settle_time_s
+
+
+@pytest.mark.slow
+def test_friction_the_feedback_can_settle_is_designed_for(ctrl):
+    p = _plant(Friction(0.0005))
+    res = EffectAwareDesigner(p, ctrl, IMAX, 0.1, None).design(200.0, 30000.0)
+    assert res.metrics.settled and res.metrics.peak_current_a <= IMAX * (1 + 1e-9)
+    assert res.metrics.settle_time_s < res.linear_metrics.settle_time_s
+
+
+@pytest.mark.slow
+def test_cli_bench_with_effects_plays_all_four_on_the_full_plant(tmp_path, capsys):
+    """``bench --plant AUGMENTED.json``: sine, windowed sine, the linear and the effect-aware design,
+    played from the start track on the plant with its effects."""
+    pp = tmp_path / "p.json"
+    kt_plant().to_json(pp)
+    rc = main(["bench", "--plant", str(pp), "--tracks", "-10", "--imax", str(IMAX), "--robust", "none",
+               "--start-track", "12010"])
+    out = capsys.readouterr().out
+    assert rc == 0
+    assert "seek from track 12010" in out and "full plant" in out
+    for label in ("sine", "windowed_sine", "optimal (linear)", "optimal (effects)"):
+        assert label in out
+    assert "Ipopt" in out
