@@ -329,7 +329,15 @@ def start_sweep(tmp_path, out, tracks="1,2,3,5,10,20,30,50", workers=2, design_s
     return subprocess.Popen([sys.executable, "-m", "seekopt.app.cli", "sweep", "--plant", str(plant), "--tpi", "100k",
                              "--tracks", tracks, "--imax", "0.3", "--designer", "test_cli_user:SlowDesigner",
                              "--workers", str(workers), "--no-figures", "-o", str(out)],
-                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=_interruptible)
+
+
+def _interruptible():
+    """In the child: SIGINT back to its default, as in a terminal.  A test run started in the
+    background (``cmd &`` without job control) ignores SIGINT, the child inherits that and Python
+    then installs no KeyboardInterrupt handler: Ctrl-C would not reach the sweep at all."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="/proc")
