@@ -19,9 +19,12 @@ An answer that satisfies every dropped row is the full QP's optimum (a convex QP
 satisfies the dropped rows is optimal with them).  A reduced QP without a solution proves the full
 QP has none (it has fewer rows) -- but only a *verified* proof counts: the primary's row multipliers
 must pass the Farkas check :func:`seekopt.design.solvers.proves_infeasible` (daqp has reported -1 on
-reduced QPs that qpOASES and HiGHS solve; its multipliers then fail the check).  An unverified
-"infeasible" goes to the full QP (the primary's and fallbacks' trust level without the working set),
-or, for a search step (``confirm=False``), is returned marked unconfirmed.
+reduced QPs that qpOASES and HiGHS solve; its multipliers then fail the check).  Without that, a
+length the answer rests on (``confirm=True``) gets a phase-1 LP on the reduced rows
+(:func:`seekopt.design.solvers.farkas_certificate`, HiGHS; first the rows daqp's multipliers name,
+then the whole working set) whose duals must pass the same check; only when that fails too does
+the full QP decide (the primary's and fallbacks' trust level without the working set).  A search
+step (``confirm=False``) returns an unverified "infeasible" marked unconfirmed.
 
 Reduced problems are solved through casadi's zero-copy buffers on numpy data
 (:meth:`seekopt.design.solvers.ConicQP.solve`), one solver chain per (free variables, row bucket);
