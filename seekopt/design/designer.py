@@ -33,7 +33,6 @@ from __future__ import annotations
 import contextlib
 import math
 from collections import Counter
-from dataclasses import dataclass
 
 import numpy as np
 from threadpoolctl import threadpool_limits
@@ -41,13 +40,13 @@ from threadpoolctl import threadpool_limits
 from identification.model.plant import ModalPlant
 
 from seekopt.design import guard as _guard, qp as _qp
-from seekopt.design.predict import (SetPrediction, play_linear, predict_on_set, scale_feedforward_maps,
-                                    superposes)
-from seekopt.design.guard import GuardReport
-from seekopt.design.metrics import DEFAULT_TAIL_S, SeekMetrics, evaluate_profile, worst_case
+from seekopt.design.predict import play_linear, predict_on_set, scale_feedforward_maps, superposes
+from seekopt.design.metrics import DEFAULT_TAIL_S, evaluate_profile, worst_case
 from seekopt.design.problem import ProblemError, SeekProblem, check_closed_loop
-from seekopt.design.profiles import Profile, finish_profile, reference_from_model, rigid_endpoint_matrix, t_bang_bang
-from seekopt.design.solvers import QPStatus, SolverChain
+from seekopt.design.profiles import Profile, exact_rest, finish_profile, reference_from_model, t_bang_bang
+from seekopt.design.result import DesignError, DesignInfeasible, DesignResult, SolveStats
+from seekopt.design.search import bisect_length, gallop_length, predict_length
+from seekopt.design.solvers import SolverChain
 from seekopt.design.working_set import WorkingSetQP
 
 __all__ = ["DesignInfeasible", "DesignError", "DesignResult", "SeekDesigner", "design_seek"]
@@ -60,69 +59,6 @@ __all__ = ["DesignInfeasible", "DesignError", "DesignResult", "SeekDesigner", "d
 #: CPU; a 3-plant drift set at K = 1000: 3 s against 12.7 s CPU, where daqp failed on the whole QP and the
 #: fallback solver took 11 s).
 WORKING_SET_MIN_ROWS = 2500
-
-
-class DesignInfeasible(ProblemError):
-    """The request cannot be met (e.g. seek too short for ``Imax``); names the shortest feasible time."""
-
-
-class DesignError(RuntimeError):
-    """No verified design: every solver failed without proof, or the answer failed the simulator check."""
-
-
-@dataclass
-class DesignResult:
-    """A verified design.
-
-    ``metrics`` are measured by :func:`seekopt.design.metrics.evaluate_profile` on the design plant
-    (the full plant, effects included); ``worst_metrics`` the worst case over the robust set (when
-    checked).  ``prediction`` holds the profile's seek-settle time on every plant of the set (nominal,
-    family members, drift vertices: :class:`seekopt.design.family.SetPrediction`, worst and binding
-    plant) and ``guard`` the worst residual it leaves in the guarded unmodelled modes
-    (:class:`seekopt.design.guard.GuardReport`); both are also in the profile's metadata.
-    ``solve_time_s`` sums the QP solves of this design; ``objective`` is
-    ``"min_settle/<worst|mean>"`` or ``"min_residual/<worst|mean>"``.  ``fallback_solves`` counts the
-    QPs a fallback solver answered after the primary failed without proof; ``unresolved_solves``
-    the QPs no solver decided (skipped).
-    """
-
-    profile: Profile
-    metrics: SeekMetrics
-    status: str
-    solve_time_s: float
-    solver: str
-    objective: str
-    settle_samples: int = 0
-    n_solves: int = 0
-    residual_band: float = float("nan")
-    worst_metrics: SeekMetrics | None = None
-    qp_status: str = ""
-    build_time_s: float = 0.0
-    fallback_solves: int = 0
-    unresolved_solves: int = 0
-    prediction: SetPrediction | None = None
-    guard: GuardReport | None = None
-
-
-class _Stats:
-    """Per-design solve bookkeeping."""
-
-    def __init__(self, primary: str):
-        self.primary = primary
-        self.n, self.t, self.status, self.fallback, self.unresolved = 0, 0.0, "", 0, []
-        self.unconfirmed = set()        # (structure, length) whose "infeasible" a search step took unproven
-
-    def add(self, N: int, sol) -> None:
-        self.n += 1
-        self.t += sol.solve_time_s
-        self.status = sol.status
-        if sol.solver != self.primary and sol.outcome in (QPStatus.OPTIMAL, QPStatus.INFEASIBLE):
-            self.fallback += 1
-        if sol.outcome not in (QPStatus.OPTIMAL, QPStatus.INFEASIBLE):
-            self.unresolved.append((N, " -> ".join(f"{a} {b} ({c})" for a, b, c in sol.attempts)))
-
-    def why(self) -> str:
-        return "; ".join(f"N = {n}: {a}" for n, a in self.unresolved[-3:])
 
 
 class SeekDesigner:
@@ -238,7 +174,7 @@ class SeekDesigner:
                                                                      builds=self._count_solver))
         return self._ws[qp]
 
-    def _solve(self, qp: _qp.SeekQP, K, n, beta, stats: _Stats, warm=None, epigraph=False, confirm=True):
+    def _solve(self, qp: _qp.SeekQP, K, n, beta, stats: SolveStats, warm=None, epigraph=False, confirm=True):
         hf_tol = self.hf_tol if self.guard_bands else None
         args = (K, n, None if epigraph else beta, self.gamma, hf_tol, self.slew)
         tol = self.settings.violation_tol
@@ -282,7 +218,7 @@ class SeekDesigner:
             return self._shortest_feasible(K)
 
     def _shortest_feasible(self, K: float) -> int:
-        stats = _Stats(self.solver_name)
+        stats = SolveStats(self.solver_name)
         epi = True          # the structure objective (a) uses
         lo = max(int(math.floor(t_bang_bang(K, self.plant.k0, self.imax) * self.fs)) - 1, 0)
         for c in self._classes(lo + 1):
@@ -309,7 +245,7 @@ class SeekDesigner:
                                 f"cannot be met at Imax {self.imax:g} A: {what}; "
                                 f"T_bb = {tbb * 1e3:.4g} ms = {tbb * self.fs:.2f} samples")
 
-    def _failed(self, K, what, stats: _Stats) -> DesignError:
+    def _failed(self, K, what, stats: SolveStats) -> DesignError:
         return DesignError(f"QP solvers {'/'.join(self.settings.chain)} failed without proof for {K:g} tracks "
                            f"{what}: {stats.why()}")
 
@@ -331,7 +267,7 @@ class SeekDesigner:
             return self._design(K, seek_samples)
 
     def _design(self, K: float, seek_samples: int | None) -> DesignResult:
-        stats = _Stats(self.solver_name)
+        stats = SolveStats(self.solver_name)
         n_rigid = int(math.ceil(t_bang_bang(K, self.plant.k0, self.imax) * self.fs - 1e-9))
         if seek_samples is not None:
             N = int(seek_samples)
@@ -373,47 +309,22 @@ class SeekDesigner:
         hi, best = self._bisect(qp, K, lo, c, sol, stats)
         return self._verify(qp, c, hi, best, K, stats, n_rigid)
 
+    def _probe(self, qp, K, stats: SolveStats):
+        """``probe(n, warm, confirm)``: the band-constrained QP at ``n`` seek samples (for :mod:`search`)."""
+        return lambda n, warm=None, confirm=True: self._solve(qp, K, n, self.beta, stats, warm=warm, confirm=confirm)
+
     def _bisect(self, qp, K, lo, hi, best, stats, floor=None):
-        """Fewest feasible seek samples in ``(lo, hi]`` (``hi`` feasible with answer ``best``); lengths
-        down to ``floor`` (default ``lo``: proven) are re-opened when an unproven step is refuted."""
-        floor = lo if floor is None else floor
-        while True:
-            while hi - lo > 1:
-                mid = (lo + hi) // 2
-                s = self._solve(qp, K, mid, self.beta, stats, warm=best.x, confirm=False)
-                if s.success:
-                    hi, best = mid, s
-                else:           # infeasible, or undecided: either way not a design at ``mid``
-                    lo = mid
-            # the answer rests on ``hi - 1`` being infeasible: a search step that took it unproven is
-            # confirmed (fallbacks on the reduced QP, then the full QP) before the answer stands
-            if hi - 1 <= floor or (id(qp), hi - 1) not in stats.unconfirmed:
-                return hi, best
-            stats.unconfirmed.discard((id(qp), hi - 1))
-            s = self._solve(qp, K, hi - 1, self.beta, stats, warm=best.x, confirm=True)
-            if not s.success:
-                return hi, best
-            hi, best, lo = hi - 1, s, floor
+        """:func:`~seekopt.design.search.bisect_length` on structure ``qp``."""
+        def unconfirmed(n):
+            key = (id(qp), n)
+            found = key in stats.unconfirmed
+            stats.unconfirmed.discard(key)
+            return found
+        return bisect_length(self._probe(qp, K, stats), lo, hi, best, unconfirmed, floor)
 
     def _predict(self, n_rigid: int) -> int | None:
-        """Settle samples predicted for a seek whose rigid bang-bang takes ``n_rigid`` samples: the
-        designed settle/T_bb ratio of the nearest earlier design (a sweep's neighbouring length, within a
-        factor 1.5 of ``n_rigid``), interpolated between the two nearest when they bracket it; None
-        when there is none."""
-        near = [k for k in self._history if 2 / 3 <= max(k, 1) / max(n_rigid, 1) <= 1.5]
-        if not near:            # no neighbouring length designed yet: the class scan is cheaper than a bad guess
-            return None
-        keys = sorted(near)
-        below = [k for k in keys if k <= n_rigid]
-        above = [k for k in keys if k >= n_rigid]
-        if below and above and below[-1] != above[0]:
-            a, b = below[-1], above[0]
-            ra, rb = self._history[a] / max(a, 1), self._history[b] / max(b, 1)
-            ratio = ra + (rb - ra) * (n_rigid - a) / (b - a)
-        else:
-            k = min(keys, key=lambda k: abs(math.log(max(k, 1) / max(n_rigid, 1))))
-            ratio = self._history[k] / max(k, 1)
-        return max(int(round(ratio * max(n_rigid, 1))), 1)
+        """Settle samples predicted from this designer's earlier designs (:func:`predict_length`)."""
+        return predict_length(self._history, n_rigid)
 
     def _predicted_search(self, K, n_rigid, first, lo, stats):
         """Search from the predicted length (:meth:`_predict`): in the size class the old scan would end
@@ -427,28 +338,10 @@ class SeekDesigner:
         c = next((x for x in classes if x >= n_pred), classes[-1])
         while True:
             qp = self._structure(c, False)
-            lo_c, n0 = lo, min(max(n_pred, lo + 1), c)
-            s = self._solve(qp, K, n0, self.beta, stats, confirm=False)
-            if s.success:
-                hi, best, step = n0, s, 1
-                while hi - step > lo_c:
-                    m = hi - step
-                    t = self._solve(qp, K, m, self.beta, stats, warm=best.x, confirm=False)
-                    if not t.success:
-                        lo_c = m
-                        break
-                    hi, best, step = m, t, 2 * step
-            else:
-                lo_c, step, hi, best = n0, 1, None, None
-                while hi is None:
-                    m = min(lo_c + step, c)
-                    t = self._solve(qp, K, m, self.beta, stats, confirm=False)
-                    if t.success:
-                        hi, best = m, t
-                    elif m == c:
-                        return None     # nothing in this class: the class scan goes on from here
-                    else:
-                        lo_c, step = m, 2 * step
+            found = gallop_length(self._probe(qp, K, stats), lo, min(max(n_pred, lo + 1), c), c)
+            if found is None:
+                return None     # nothing in this class: the class scan goes on from here
+            lo_c, hi, best = found
             hi, best = self._bisect(qp, K, lo_c, hi, best, stats, floor=lo)
             # the scan takes the first class whose longest seek is feasible: a smaller class that holds
             # this length is that class (re-searched there, from this length)
@@ -474,19 +367,10 @@ class SeekDesigner:
         raise DesignError(f"no design for {K:g} tracks passed the simulator check up to {c} samples")
 
     # ------------------------------------------------------------------ verification
-    def _finish(self, qp, sol, K, N, stats: _Stats, objective, strict) -> DesignResult:
+    def _finish(self, qp, sol, K, N, stats: SolveStats, objective, strict) -> DesignResult:
         u, r = qp.unpack(sol.x, K, N)
-        M = rigid_endpoint_matrix(N, self.plant.k0, 1.0 / self.fs)
-        u = np.clip(u, -self.imax, self.imax)
-        for _ in range(3):      # exact rest-to-rest: least-norm correction on the unsaturated samples
-            miss = np.array([K, 0.0]) - M @ u
-            free = np.abs(u) < self.imax * (1 - 1e-9)
-            if np.max(np.abs(miss)) <= 1e-9 or free.sum() < 2:
-                break
-            Mf = M[:, free]
-            u[free] += Mf.T @ np.linalg.solve(Mf @ Mf.T, miss)
-            u = np.clip(u, -self.imax, self.imax)
-        if np.max(np.abs(M @ u - [K, 0.0])) > 1e-6 or not np.all(np.isfinite(u)):
+        u = exact_rest(u, K, self.plant.k0, self.fs, self.imax)
+        if u is None:
             raise DesignError(f"design misses rest at {K:g} tracks")
         meta = {"plant_hash": self.plant.hash(), "controller_hash": self.controller.hash(),
                 **({"family_hashes": ";".join(p.hash() for p in self.problem.family)} if self.problem.family else {}),

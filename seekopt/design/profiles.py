@@ -29,7 +29,7 @@ import numpy as np
 
 from identification.model.plant import ModalPlant, atomic_write_text as _atomic_write
 
-__all__ = ["Profile", "ProfileError", "rigid_endpoint_matrix", "normalise_rest_to_rest",
+__all__ = ["Profile", "ProfileError", "rigid_endpoint_matrix", "normalise_rest_to_rest", "exact_rest",
            "sine_profile", "windowed_sine_profile", "bang_bang_profile", "t_bang_bang",
            "shortest_baseline", "reference_from_model", "finish_profile"]
 
@@ -171,6 +171,27 @@ def normalise_rest_to_rest(u: np.ndarray, tracks: float, k0: float, ts: float) -
     u = u * (tracks / pos)
     miss = np.array([tracks, 0.0]) - M @ u
     return u + M.T @ np.linalg.solve(M @ M.T, miss)
+
+
+def exact_rest(u: np.ndarray, tracks: float, k0: float, fs: float, imax: float, iters: int = 3):
+    """``u`` [A] clipped to ``±imax`` and corrected to end exactly at rest at ``tracks`` on the ZOH
+    rigid model (:func:`rigid_endpoint_matrix`): a least-norm correction on the unsaturated samples,
+    re-clipped, ``iters`` times.  Returns None when the rest point is still missed by more than
+    1e-6 (track, track/sample) or ``u`` is not finite."""
+    M = rigid_endpoint_matrix(len(u), k0, 1.0 / fs)
+    target = np.array([float(tracks), 0.0])
+    u = np.clip(np.asarray(u, float), -imax, imax)
+    for _ in range(iters):
+        miss = target - M @ u
+        free = np.abs(u) < imax * (1 - 1e-9)
+        if np.max(np.abs(miss)) <= 1e-9 or free.sum() < 2:
+            break
+        Mf = M[:, free]
+        u[free] += Mf.T @ np.linalg.solve(Mf @ Mf.T, miss)
+        u = np.clip(u, -imax, imax)
+    if np.max(np.abs(M @ u - target)) > 1e-6 or not np.all(np.isfinite(u)):
+        return None
+    return u
 
 
 def t_bang_bang(tracks: float, k0: float, imax: float) -> float:

@@ -1,0 +1,93 @@
+"""The seek-length search of :class:`~seekopt.design.designer.SeekDesigner`'s minimum seek-settle design.
+
+Feasibility of the band-constrained QP is monotone in the seek length ``N`` (a longer seek can
+always wait), so the shortest feasible ``N`` is found by bisection (:func:`bisect_length`).
+``probe(n, warm=None, confirm=True)`` solves the QP at ``n`` samples and returns the solution
+(``.success``, ``.x``); ``confirm=False`` lets a reduced (working-set) QP's unproven "infeasible"
+steer the search, and the one length the answer rests on is confirmed before it stands.
+
+A sweep designs neighbouring lengths one after another; the settle/T_bb ratio of the nearest earlier
+designs predicts where the next one's shortest feasible length lies, so the search starts there
+instead of scanning the size classes from the shortest (``studies/design_speed.py``).
+"""
+from __future__ import annotations
+
+import math
+
+__all__ = ["predict_length", "bisect_length", "gallop_length"]
+
+
+def predict_length(history: dict, n_rigid: int) -> int | None:
+    """Settle samples predicted for a seek whose rigid bang-bang takes ``n_rigid`` samples.
+
+    ``history`` maps the rigid bang-bang samples of earlier designs to their designed settle samples.
+    The prediction is the designed settle/T_bb ratio of the nearest earlier design (a sweep's neighbouring length, within a
+    factor 1.5 of ``n_rigid``), interpolated between the two nearest when they bracket it; None
+    when there is none."""
+    near = [k for k in history if 2 / 3 <= max(k, 1) / max(n_rigid, 1) <= 1.5]
+    if not near:            # no neighbouring length designed yet: the class scan is cheaper than a bad guess
+        return None
+    keys = sorted(near)
+    below = [k for k in keys if k <= n_rigid]
+    above = [k for k in keys if k >= n_rigid]
+    if below and above and below[-1] != above[0]:
+        a, b = below[-1], above[0]
+        ra, rb = history[a] / max(a, 1), history[b] / max(b, 1)
+        ratio = ra + (rb - ra) * (n_rigid - a) / (b - a)
+    else:
+        k = min(keys, key=lambda k: abs(math.log(max(k, 1) / max(n_rigid, 1))))
+        ratio = history[k] / max(k, 1)
+    return max(int(round(ratio * max(n_rigid, 1))), 1)
+
+
+def bisect_length(probe, lo: int, hi: int, best, unconfirmed, floor: int | None = None):
+    """Fewest feasible seek samples in ``(lo, hi]``.
+
+    ``hi`` is feasible with answer ``best``.  ``unconfirmed(n)`` says (and forgets) whether a search
+    step took ``n`` as infeasible without proof; when the answer rests on such a step (``hi - 1``),
+    ``hi - 1`` is solved again with ``confirm=True`` and, if feasible after all, the search reopens
+    down to ``floor`` (default ``lo``: proven infeasible).  Returns ``(N, answer)``.
+    """
+    floor = lo if floor is None else floor
+    while True:
+        while hi - lo > 1:
+            mid = (lo + hi) // 2
+            s = probe(mid, best.x, False)
+            if s.success:
+                hi, best = mid, s
+            else:           # infeasible, or undecided: either way not a design at ``mid``
+                lo = mid
+        if hi - 1 <= floor or not unconfirmed(hi - 1):
+            return hi, best
+        s = probe(hi - 1, best.x, True)
+        if not s.success:
+            return hi, best
+        hi, best, lo = hi - 1, s, floor
+
+
+def gallop_length(probe, lo: int, n0: int, nmax: int):
+    """Bracket the shortest feasible length around a predicted ``n0`` in ``(lo, nmax]``.
+
+    Feasible at ``n0``: steps down by 1, 2, 4, ... until a length fails; infeasible: steps up the same
+    way until one succeeds.  Returns ``(lo, hi, answer at hi)`` for :func:`bisect_length`, or None
+    when nothing up to ``nmax`` is feasible.
+    """
+    s = probe(n0, None, False)
+    if s.success:
+        hi, best, step = n0, s, 1
+        while hi - step > lo:
+            m = hi - step
+            t = probe(m, best.x, False)
+            if not t.success:
+                return m, hi, best
+            hi, best, step = m, t, 2 * step
+        return lo, hi, best
+    lo, step = n0, 1
+    while True:
+        m = min(lo + step, nmax)
+        t = probe(m, None, False)
+        if t.success:
+            return lo, m, t
+        if m == nmax:
+            return None
+        lo, step = m, 2 * step
