@@ -397,6 +397,38 @@ def test_farkas_check_and_zero_copy_solve():
     assert bad.outcome is not solvmod.QPStatus.OPTIMAL
 
 
+def test_phase1_lp_certificate_proves_only_infeasible_rows():
+    """farkas_certificate returns verified multipliers for rows with no solution (an infeasible
+    subset of a larger row set proves the larger set infeasible) and None for feasible rows."""
+    rng = np.random.default_rng(3)
+    n = 8
+    A = rng.standard_normal((30, n))
+    x_in = rng.uniform(-0.5, 0.5, n)
+    r = A @ x_in
+    lba, uba = r - 0.1, r + 0.1                      # feasible: x_in satisfies them
+    lbx, ubx = -np.ones(n), np.ones(n)
+    assert solvmod.farkas_certificate(A, lba, uba, lbx, ubx) is None
+    A2 = np.vstack([A, A[:1]])                       # row 0 again, bounded away from its band
+    lb2, ub2 = np.append(lba, uba[0] + 0.05), np.append(uba, np.inf)
+    lam = solvmod.farkas_certificate(A2, lb2, ub2, lbx, ubx)
+    assert lam is not None and solvmod.proves_infeasible(A2, lb2, ub2, lbx, ubx, lam)
+    big = np.vstack([A2, rng.standard_normal((50, n))])
+    lam_big = np.zeros(len(big)); lam_big[:len(A2)] = lam
+    assert solvmod.proves_infeasible(big, np.append(lb2, -np.ones(50) * np.inf), np.append(ub2, np.full(50, np.inf)),
+                                     lbx, ubx, lam_big)
+
+
+def test_blocked_mode_residuals_equal_the_phasor_matrix():
+    """qp.mode_residuals (blocked sum, used by the guard report) equals mode_residual_phasors @ i."""
+    from seekopt.design.qp import mode_residual_phasors, mode_residuals
+    rng = np.random.default_rng(4)
+    f, g = np.linspace(2e3, 4e4, 97), rng.uniform(0.1, 2.0, 97)
+    for n in (1, 5, 64, 1237):
+        i = rng.standard_normal(n)
+        ref = mode_residual_phasors(3e5, 25e3, 4, n, f, g) @ i
+        assert np.allclose(mode_residuals(3e5, 25e3, 4, i, f, g), ref, rtol=1e-11, atol=1e-12 * np.abs(ref).max())
+
+
 def test_neighbouring_lengths_start_from_the_predicted_length(setup):
     """A sweep's next length starts from the settle/T_bb ratio of its neighbour and designs the same
     length as a fresh designer (class scan and bisection)."""

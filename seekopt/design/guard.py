@@ -33,7 +33,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from seekopt.design.qp import mode_residual_phasors, mode_residual_rows
+from seekopt.design.qp import mode_residual_phasors, mode_residual_rows, mode_residuals, dtft
 
 __all__ = ["GuardBand", "controller_notches", "nyquist_band", "plant_blind_bands", "plant_gain_curve", "curve_gain",
            "band_gains", "merge_bands",
@@ -282,7 +282,7 @@ def loop_peaks(maps, bands: list, fs: float, spacing_hz: float) -> np.ndarray:
             f = np.arange(max(b.lo_hz, step), b.hi_hz + step, step)
             if f.size < 3:
                 continue
-            mag = np.abs(np.exp(-2j * np.pi * np.outer(f * h, np.arange(x.size))) @ x)
+            mag = np.abs(dtft(x, 2 * np.pi * f * h))
             db = 20 * np.log10(np.maximum(mag, 1e-300))
             for i in range(1, f.size - 1):
                 if not (db[i] > db[i - 1] and db[i] >= db[i + 1]):
@@ -358,7 +358,7 @@ def guard_report(plant, controller, profile, bands: list, settle: float | None =
         f, g = guard_grid([b], spacing_hz, curve=curve)
         if not f.size:
             continue
-        z = np.abs(mode_residual_phasors(plant.k0, fs, L, i_sub.size, f, g) @ i_sub) / band
+        z = np.abs(mode_residuals(plant.k0, fs, L, i_sub, f, g)) / band
         k = int(np.argmax(z))
         per.append((b, float(z[k])))
         if z[k] > worst[0]:

@@ -25,7 +25,7 @@ from seekopt.drive.simulator import closed_loop_responses
 # solver names re-exported for callers of the former combined module
 from seekopt.design.solvers import QP_PLUGINS, ConicQP, IpoptQP, QPSolution, dm, make_qp_solver  # noqa: F401
 
-__all__ = ["LoopMaps", "toeplitz_rows", "hf_guard_matrix", "mode_residual_phasors", "mode_residual_rows", "pes_row_samples", "SeekQP"]
+__all__ = ["LoopMaps", "toeplitz_rows", "hf_guard_matrix", "mode_residual_phasors", "mode_residual_rows", "mode_residuals", "dtft", "pes_row_samples", "SeekQP"]
 
 
 def toeplitz_rows(h: np.ndarray, rows: np.ndarray, ncols: int) -> np.ndarray:
@@ -113,12 +113,43 @@ def mode_residual_phasors(k0: float, fs: float, L: int, nsub: int, freqs_hz, gai
     E : (nf, nsub) complex ndarray
         ``z = E @ i`` [track] for sub-step currents ``i`` [A], ``m < nsub``.
     """
+    wt, wh = _mode_weights(k0, fs, L, freqs_hz, gains)
+    return wt[:, None] * np.exp(-1j * np.outer(wh, np.arange(int(nsub))))
+
+
+def _mode_weights(k0, fs, L, freqs_hz, gains):
+    """``(k0 g |1 - exp(-j w h)| / w^2, w h)`` per frequency of :func:`mode_residual_phasors`."""
     h = 1.0 / (L * fs)
     f = np.atleast_1d(np.asarray(freqs_hz, dtype=float))
     g = np.broadcast_to(np.asarray(gains, dtype=float), f.shape)
     w = 2 * np.pi * f
-    wt = k0 * g * np.abs(1 - np.exp(-1j * w * h)) / w ** 2
-    return wt[:, None] * np.exp(-1j * np.outer(w * h, np.arange(int(nsub))))
+    return k0 * g * np.abs(1 - np.exp(-1j * w * h)) / w ** 2, w * h
+
+
+def mode_residuals(k0: float, fs: float, L: int, current_sub, freqs_hz, gains=1.0) -> np.ndarray:
+    """``mode_residual_phasors(k0, fs, L, len(i), freqs_hz, gains) @ i`` for one current sequence
+    ``i`` [A] without forming the ``(nf, len(i))`` matrix: the sum over sub-steps ``m = a B + b``
+    is split as ``sum_a exp(-j w h a B) sum_b i_(aB+b) exp(-j w h b)`` (``B ~ sqrt(len(i))``
+    complex exponentials per frequency instead of ``len(i)``; the same sum up to rounding)."""
+    wt, wh = _mode_weights(k0, fs, L, freqs_hz, gains)
+    return wt * dtft(current_sub, wh)
+
+
+def dtft(x, wh) -> np.ndarray:
+    """``sum_m x_m exp(-j wh m)`` for each normalised angular frequency ``wh`` [rad/sample].
+
+    The sum over ``m = a B + b`` is split as ``sum_a exp(-j wh a B) sum_b x_(aB+b) exp(-j wh b)``
+    with ``B ~ sqrt(len(x))``: ``2 sqrt(len(x))`` complex exponentials per frequency instead of
+    ``len(x)`` (the same sum up to rounding)."""
+    x = np.asarray(x, dtype=float).ravel()
+    wh = np.atleast_1d(np.asarray(wh, dtype=float))
+    B = max(int(np.ceil(np.sqrt(x.size))), 1)
+    nA = max(-(-x.size // B), 1)
+    blocks = np.zeros(nA * B)
+    blocks[:x.size] = x
+    inner = np.exp(-1j * np.outer(wh, np.arange(B))) @ blocks.reshape(nA, B).T       # (nf, nA)
+    outer = np.exp(-1j * np.outer(wh * B, np.arange(nA)))                           # (nf, nA)
+    return np.sum(inner * outer, axis=1)
 
 
 def mode_residual_rows(E: np.ndarray, npoly: int = 4) -> np.ndarray:

@@ -29,7 +29,7 @@ import casadi as ca
 import numpy as np
 
 __all__ = ["QPStatus", "classify_status", "QPSolution", "ConicQP", "IpoptQP", "make_qp_solver", "SolverChain",
-           "QP_PLUGINS", "dm", "proves_infeasible"]
+           "QP_PLUGINS", "dm", "proves_infeasible", "farkas_certificate"]
 
 #: ``casadi.conic`` plugins the designer accepts.
 QP_PLUGINS = ("daqp", "qpoases", "highs", "osqp", "proxqp", "qrqp")
@@ -321,6 +321,46 @@ def proves_infeasible(A: np.ndarray, lba, uba, lbx, ubx, lam_a, rel_tol: float =
     bnd = np.where(pos, uba, np.where(neg, lba, 0.0))
     scale = 1.0 + float(np.abs(lam) @ (np.abs(A) @ xmax + np.abs(bnd)))
     return sup < float(low.sum()) - rel_tol * scale
+
+
+def farkas_certificate(A: np.ndarray, lba, uba, lbx, ubx):
+    """Row multipliers proving ``lba <= A x <= uba, lbx <= x <= ubx`` infeasible, or ``None``.
+
+    The phase-1 LP ``min t  s.t.  A x - t <= uba,  -A x - t <= -lba,  lbx <= x <= ubx,  t >= 0``
+    (HiGHS through :func:`scipy.optimize.linprog`) has a positive optimum exactly when the rows and
+    bounds admit no ``x``; its duals ``mu_u, mu_l >= 0`` then satisfy the Farkas alternative, returned
+    as ``lam = mu_u - mu_l`` in casadi's sign convention (> 0 upper bound, < 0 lower bound).  The
+    multipliers are only returned when :func:`proves_infeasible` verifies them on the data given
+    (the LP's tolerances prove nothing by themselves).  Rows of a subset of a problem's constraints
+    proven infeasible prove the whole problem infeasible.
+    """
+    from scipy.optimize import linprog
+    A = np.asarray(A, dtype=float)
+    lba, uba = np.asarray(lba, dtype=float), np.asarray(uba, dtype=float)
+    m, n = A.shape
+    up, lo = np.flatnonzero(np.isfinite(uba)), np.flatnonzero(np.isfinite(lba))
+    if not (up.size + lo.size):
+        return None
+    A_ub = np.zeros((up.size + lo.size, n + 1))
+    A_ub[:up.size, :n], A_ub[up.size:, :n] = A[up], -A[lo]
+    A_ub[:, n] = -1.0
+    b_ub = np.concatenate([uba[up], -lba[lo]])
+    c = np.zeros(n + 1)
+    c[n] = 1.0
+    bounds = [(None if not np.isfinite(a) else a, None if not np.isfinite(b) else b)
+              for a, b in zip(np.asarray(lbx, dtype=float), np.asarray(ubx, dtype=float))] + [(0.0, None)]
+    try:
+        res = linprog(c, A_ub=A_ub, b_ub=b_ub, bounds=bounds, method="highs")
+    except ValueError:
+        return None
+    if res.status != 0 or not res.fun > 0 or getattr(res, "ineqlin", None) is None:
+        return None
+    mu = -np.asarray(res.ineqlin.marginals, dtype=float)        # HiGHS: d(objective)/d(b_ub) <= 0
+    mu = np.maximum(mu, 0.0)
+    lam = np.zeros(m)
+    np.add.at(lam, up, mu[:up.size])
+    np.subtract.at(lam, lo, mu[up.size:])
+    return lam if proves_infeasible(A, lba, uba, lbx, ubx, lam) else None
 
 
 def make_qp_solver(n: int, m: int, solver: str = "daqp", options: dict | None = None):
