@@ -112,6 +112,21 @@ def test_play_seek_starts_at_rest_at_the_start_track(ctrl):
     assert m.settle_time_s == 0.0
 
 
+def test_compensate_input_map_is_the_torque_constant_along_the_plan(ctrl):
+    """The guard's input map: gain = Kt(x) along the planned run, and gain * comp + offset gives back
+    the linear design's feedforward (the force the modes see)."""
+    from seekopt.design.feasibility import compensate
+    p = kt_plant()
+    fs = ctrl.sample_rate_hz
+    n = 20
+    u = 0.1 * np.sin(np.linspace(0, 2 * np.pi, n))
+    prof = Profile(u, np.r_[np.linspace(0, 5, n - 1), 5.0], fs, 5.0, IMAX, 0.1, "none", n - 1)
+    comp, peak, (g, o) = compensate(p, ctrl, prof, 12000.0, input_gain=True)
+    assert np.allclose(g, 0.88, atol=2e-4)
+    assert np.allclose(g * comp.current_a + o, u, atol=1e-9)
+    assert np.max(np.abs(comp.current_a)) > np.max(np.abs(u)) * 1.1
+
+
 # ----------------------------------------------------------------------------- what no feedforward can fix
 def test_hold_check_names_a_friction_limit_cycle(ctrl):
     big = _plant(Friction(0.03), rng=False)

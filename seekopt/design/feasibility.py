@@ -222,7 +222,7 @@ def hold_check(plant: ModalPlant, controller, target_track: float, band: float, 
 
 
 def compensate(plant: ModalPlant, controller, profile: Profile, start_track: float = 0.0,
-               horizon_s: float = 0.004) -> tuple:
+               horizon_s: float = 0.004, input_gain: bool = False) -> tuple:
     """The feedforward that makes the full plant deliver, along the seek the linear design plans,
     the current its linear part would: the warm start of the effect-aware NLP.
 
@@ -235,7 +235,12 @@ def compensate(plant: ModalPlant, controller, profile: Profile, start_track: flo
     (``x, v``: the planned head position and velocity, ``fb``: the feedback current of that run).
     If the full plant then follows the plan, its loop sees exactly the linear design's run.
     Returns ``(Profile, peak)``: the compensated profile (reference unchanged) and the peak total
-    current [A] of the planned run through the compensation.
+    current [A] of the planned run through the compensation.  With ``input_gain``, also
+    ``(gain, offset)`` (``(n,)`` each): the plant's input map linearised along the plan, so that the
+    current-equivalent force a feedforward ``c`` delivers is ``gain * c + offset`` to first order
+    (``gain``: local ``d command / d current``, e.g. ``Kt(x)``; at ``c = comp`` exactly the linear
+    design's ``u``).  The effect-aware NLP applies the unmodelled-mode guard to that force, which is
+    what excites the modes, rather than to the command.
     """
     fs, L = float(controller.sample_rate_hz), int(controller.fast_multiple)
     dt = 1.0 / (fs * L)
@@ -257,4 +262,11 @@ def compensate(plant: ModalPlant, controller, profile: Profile, start_track: flo
     peak = float(np.max(np.abs(out + uh + fb)))
     comp = Profile(out[:n], profile.reference_track.copy(), profile.sample_rate_hz, profile.tracks, profile.imax_a,
                    profile.settle_track, profile.kind, profile.seek_samples, dict(profile.meta))
-    return comp, peak
+    if not input_gain:
+        return comp, peak
+    h = 1e-4 * max(float(np.max(np.abs(out[:n]))), 1e-3)      # central difference of the input map [A]
+    gain = np.array([(dp.command(out[k] + h + uh + fb[k], x[k]) - dp.command(out[k] - h + uh + fb[k], x[k]))
+                     / (2 * h) for k in range(n)]) / np.array([(dl.command(u[k] + h + uhl + fb[k], x[k])
+                                                                 - dl.command(u[k] - h + uhl + fb[k], x[k])) / (2 * h)
+                                                                for k in range(n)])
+    return comp, peak, (gain, u[:n] - gain * out[:n])

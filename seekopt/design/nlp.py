@@ -187,7 +187,7 @@ class EffectAwareDesigner:
         # the seek's, and no feedforward removes them (the hold check above includes them)
         lin_m, _ = play_seek(self.nlp_plant, self.controller, lin.profile, T0, settle=self.settle,
                              horizon_s=st.check_tail_s)
-        warm, comp = self._warm_start(K, T0, lin, say)
+        warm, comp, (g_w, o_w) = self._warm_start(K, T0, lin, say)
         dt = 1.0 / (self.fs * self.L)
         uh = hold_current(self.nlp_plant, T0, dt)
         dp = self.nlp_plant.discretize(dt)
@@ -212,7 +212,9 @@ class EffectAwareDesigner:
             vb, qb = (cache[m][1], cache[m][2]) if ok_prev else (v_w, q_w)
             v0 = np.r_[_stretch(vb, m, n) * (m / n) ** 2, np.zeros(nlp.N - n)]   # same distance in n samples
             q0 = np.r_[_stretch(qb, m, n), np.zeros(nlp.N - n)]
-            rec, v, q = nlp.solve(K, T0, n, self.imax, uh, x0, v0, q0, st.band_margin, st.current_margin)
+            imap = (_stretch(g_w, n0, n), _stretch(o_w, n0, n) * (n0 / n) ** 2)   # the plan, time-stretched
+            rec, v, q = nlp.solve(K, T0, n, self.imax, uh, x0, v0, q0, st.band_margin, st.current_margin,
+                                  input_map=imap)
             solves.append(rec)
             if not rec.success and rec.status in ("Maximum_WallTime_Exceeded", "Maximum_CpuTime_Exceeded"):
                 raise NLPDesignError(f"Ipopt timed out ({st.nlp_wall_s:g} s) for {K:g} tracks in {n} samples")
@@ -264,15 +266,16 @@ class EffectAwareDesigner:
                              f"check ({tried} candidates from {hi} samples)")
 
     def _warm_start(self, K, T0, lin, say):
-        """``(DesignResult, compensated Profile)``: the linear design whose feedforward, passed through
+        """``(DesignResult, compensated Profile, (gain, offset))``: the linear design whose feedforward, passed through
         the plant's input map and forces along its planned run (:func:`compensate`), stays within
         ``current_margin * Imax``; when it does not (a torque constant below 1, a bias the hold must
-        carry), the linear design is redone for a lower current limit (cached per 1 % of Imax)."""
+        carry), the linear design is redone for a lower current limit (cached per 1 % of Imax).
+        ``(gain, offset)``: the input map along the plan (:func:`compensate`), for the NLP's guard."""
         limit = self.settings.current_margin * self.imax
-        comp, peak = compensate(self.nlp_plant, self.controller, lin.profile, T0)
+        comp, peak, imap = compensate(self.nlp_plant, self.controller, lin.profile, T0, input_gain=True)
         for _ in range(3):
             if peak <= limit * (1 + 1e-6):
-                return lin, comp
+                return lin, comp, imap
             frac = math.floor(100.0 * lin.profile.imax_a / self.imax * limit / peak) / 100.0
             if frac < 0.3:
                 break
@@ -283,8 +286,8 @@ class EffectAwareDesigner:
                     robust=self.robust, family=self.problem.family))
             say(f"linear design for {K:g} tracks at {frac:.2f} Imax (the effects need the rest)")
             lin = self._derated[frac].design(K)
-            comp, peak = compensate(self.nlp_plant, self.controller, lin.profile, T0)
-        return lin, comp
+            comp, peak, imap = compensate(self.nlp_plant, self.controller, lin.profile, T0, input_gain=True)
+        return lin, comp, imap
 
     def _profile(self, v, q, K, T0, n, lin: DesignResult, solves) -> Profile:
         u = self.imax * np.asarray(v[:n], float)
