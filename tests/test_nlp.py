@@ -7,9 +7,11 @@ beats the linear design on a drive with torque-constant variation.  Study-size d
 K = 200, friction that the feedback can settle) are marked slow.
 """
 import json
+import math
 
 import casadi as ca
 import numpy as np
+
 import pytest
 
 from identification.model.effects import Friction, PositionBias, TorqueConstantVariation
@@ -179,18 +181,27 @@ def test_timeout_raises(ctrl):
         des.design(10.0, 12000.0)
 
 
-def test_failed_full_plant_check_is_not_returned(ctrl, monkeypatch):
+@pytest.mark.parametrize("linear_fails_too", [False, True])
+def test_failed_full_plant_check_is_not_returned(ctrl, monkeypatch, linear_fails_too):
+    """An NLP design that fails the full-plant check is never returned: the linear design, verified on the
+    same full plant from the same start, is the answer; when that fails too, NLPDesignError."""
     des = EffectAwareDesigner(kt_plant(), ctrl, IMAX, 0.1, None, NLPSettings(tail_s=0.002, check_steps=1))
     real = nlpmod.play_seek
 
-    def pessimist(plant, controller, prof, start, **kw):       # every NLP design "overshoots Imax"
+    def pessimist(plant, controller, prof, start, **kw):       # these designs "overshoot Imax"
         m, sim = real(plant, controller, prof, start, **kw)
-        if prof.kind == "optimal-nlp":
+        if prof.kind == "optimal-nlp" or linear_fails_too:
             m.peak_current_a = 2 * IMAX
         return m, sim
     monkeypatch.setattr(nlpmod, "play_seek", pessimist)
-    with pytest.raises(NLPDesignError, match="full-plant check"):
-        des.design(10.0, 12000.0)
+    if linear_fails_too:
+        with pytest.raises(NLPDesignError, match="full-plant check"):
+            des.design(10.0, 12000.0)
+    else:
+        res = des.design(10.0, 12000.0)
+        assert res.profile.kind != "optimal-nlp" and res.profile.meta["design_path"].startswith("linear")
+        assert res.metrics.peak_current_a <= IMAX * (1 + 1e-9) and res.metrics.settled
+        assert res.settle_samples == math.ceil(res.linear_metrics.settle_time_s * res.profile.sample_rate_hz - 1e-9)
 
 
 # ----------------------------------------------------------------------------- designs

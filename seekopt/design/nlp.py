@@ -26,6 +26,7 @@ nothing is returned (or written) as a profile.
 """
 from __future__ import annotations
 
+import copy
 import math
 import time
 from dataclasses import dataclass
@@ -229,17 +230,25 @@ class EffectAwareDesigner:
             cache[n] = (good, v[:n], q[:n], res)
             return good
 
+        # the linear design, played on the full plant, is a verified design too: the NLP searches only
+        # for shorter seeks, and when it finds none the linear design is the answer (never a worse one)
+        n_lin = _verified_samples(lin_m, self.fs, self.imax)
+        n_cap = st.max_samples if n_lin is None else min(st.max_samples, n_lin - 1)
+        if n_cap < 1:
+            return self._linear_result(lin, lin_m, K, T0, n_lin, solves, say)
         try:
-            lo, hi = _search_length(feasible, lambda n: cache[n][3], n0, st.band_margin, st.max_samples)
+            lo, hi = _search_length(feasible, lambda n: cache[n][3], min(n0, n_cap), st.band_margin, n_cap)
         except _Budget:
             hi = min(m for m, (ok, *_ ) in cache.items() if ok)
         if hi is None:
+            if n_lin is not None:
+                return self._linear_result(lin, lin_m, K, T0, n_lin, solves, say)
             raise NLPDesignError(f"no effect-aware design of {K:g} tracks from track {T0:g} within "
                                  f"{st.max_samples} samples ({solves[-1].status if solves else 'no NLP'})")
         # verify on the full plant; step up on failure
         tried = 0
-        for n in sorted(m for m, (ok, *_ ) in cache.items() if ok and m >= hi) + \
-                list(range(hi + 1, min(hi + st.check_steps, st.max_samples) + 1)):
+        for n in sorted(m for m, (ok, *_ ) in cache.items() if ok and hi <= m <= n_cap) + \
+                list(range(hi + 1, min(hi + st.check_steps, n_cap) + 1)):
             if tried >= st.check_steps:
                 break
             try:
@@ -256,14 +265,29 @@ class EffectAwareDesigner:
                 rec = next(s for s in reversed(solves) if s.n_seek == n)
                 prof.meta.update(guard_excess_band=round(rec.guard_excess, 4),
                                  warm_start_imax_a=round(warm.profile.imax_a, 5))
-                prof.meta.update(design_status="verified", ipopt_iterations=sum(s.iterations for s in solves),
+                prof.meta.update(design_status="verified", design_path="nlp", ipopt_iterations=sum(s.iterations for s in solves),
                                  ipopt_time_s=round(sum(s.wall_s for s in solves), 3), n_nlp=len(solves))
                 return NLPDesignResult(prof, m, T0, n, solves, lin, lin_m,
                                        sum(p.build_time_s for p in self._nlps.values()))
             say(f"  N={n}: full-plant check failed (settle {m.settle_time_s * 1e3:.3f} ms, "
                 f"peak {m.peak_current_a:.4g} A)")
+        if n_lin is not None:
+            return self._linear_result(lin, lin_m, K, T0, n_lin, solves, say)
         raise NLPDesignError(f"no effect-aware design of {K:g} tracks from track {T0:g} passed the full-plant "
                              f"check ({tried} candidates from {hi} samples)")
+
+    def _linear_result(self, lin: DesignResult, lin_m: SeekMetrics, K, T0, n_lin: int, solves, say):
+        """The linear (QP) design as the answer: it settled on the full plant from ``T0`` within Imax in
+        ``n_lin`` samples and no effect-aware design settled sooner."""
+        say(f"  no effect-aware design settles before the linear design ({n_lin} samples on the full plant): "
+            "the linear design is the answer")
+        prof = copy.deepcopy(lin.profile)
+        prof.meta.update(start_track=T0, direction="outward" if K > 0 else "inward", design_status="verified",
+                         design_path="linear (no effect-aware design settled sooner)",
+                         effects_in_design="none", ipopt_iterations=sum(s.iterations for s in solves),
+                         ipopt_time_s=round(sum(s.wall_s for s in solves), 3), n_nlp=len(solves))
+        return NLPDesignResult(prof, lin_m, T0, n_lin, solves, lin, lin_m,
+                               sum(p.build_time_s for p in self._nlps.values()))
 
     def _warm_start(self, K, T0, lin, say):
         """``(DesignResult, compensated Profile, (gain, offset))``: the linear design whose feedforward, passed through
@@ -303,6 +327,13 @@ class EffectAwareDesigner:
         if out:
             meta["effects_not_in_design"] = ";".join(out)
         return Profile(np.r_[u, 0.0], np.r_[r, K], self.fs, K, self.imax, self.settle, "optimal-nlp", n, meta)
+
+
+def _verified_samples(m: SeekMetrics, fs: float, imax: float) -> int | None:
+    """Seek-settle samples of a design played on the full plant, None if it did not settle within Imax."""
+    if not (m.settled and math.isfinite(m.settle_time_s) and m.peak_current_a <= imax * (1 + 1e-9)):
+        return None
+    return max(int(math.ceil(m.settle_time_s * fs - 1e-9)), 1)
 
 
 def _search_length(feasible, residual, n0: int, beta: float, n_max: int):
