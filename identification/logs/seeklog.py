@@ -174,12 +174,8 @@ class SeekLog:
             raise LogError(name, "no seek in log: target_track never changes")
         log = cls(**cols, sample_rate_hz=rate, track_pitch_nm=pitch, metadata=meta, extra=extras, source=source)
         log.input_current()          # validates the optional sub-step current columns
-        _check_current_columns(log)  # ... and that current_a is their mean
+        check_current_columns(log)   # ... and that current_a is their mean
         return log
-
-
-def _check_current_columns(log) -> None:
-    check_current_columns(log)
 
 
 # ------------------------------------------------------------------------------------- segmentation

@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.signal import lfilter
 
 from identification.logs.seeklog import SeekLog
 from identification.loop.grid import Grid, eval_forces, eval_inputs, eval_outputs
@@ -40,12 +41,9 @@ def _lag_average(u: np.ndarray, bandwidth_hz: float, h: float) -> np.ndarray:
     wa = 2 * math.pi * bandwidth_hz
     a = math.exp(-wa * h)
     g = (1.0 - a) / (wa * h)
-    out = np.empty_like(u)
-    x = u[0]
-    for k, uk in enumerate(u):
-        out[k] = uk + (x - uk) * g
-        x = a * x + (1.0 - a) * uk
-    return out
+    u = np.asarray(u, dtype=float)
+    x = lfilter([0.0, 1.0 - a], [1.0, -a], u, zi=[u[0]])[0]     # lag state at the start of each step
+    return u + (x - u) * g
 
 
 def compensate(plant: ModalPlant, log: SeekLog, res=None, effect_step_s: float | None = None) -> SeekLog:

@@ -22,8 +22,8 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from identification.logs.seeklog import SeekLog
-from identification.model.effects import CurrentSaturation, Friction, PivotSpringDamper, PositionBias, \
-    TorqueConstantVariation
+from identification.model.effects import CurrentSaturation, PivotSpringDamper
+from identification.model.ops import NUMPY, SmoothingSettings, numpy_ops
 from identification.model.plant import ModalPlant
 
 __all__ = ["Grid", "velocity_estimate", "eval_inputs", "eval_forces", "eval_outputs", "has_state_effects"]
@@ -86,36 +86,28 @@ class Grid:
 
 # ---------------------------------------------------------------- vectorised effects
 def eval_inputs(effects, u: np.ndarray, position: np.ndarray) -> np.ndarray:
-    """Apply ``input`` effects (in order) to currents [A] at ``position`` [track] (same shapes)."""
+    """Apply ``input`` effects (in order) to currents [A] at ``position`` [track] (same shapes): each
+    effect's own :meth:`~identification.model.effects.Effect.input_map` on arrays."""
     for e in effects:
-        if e.kind != "input":
-            continue
-        if isinstance(e, CurrentSaturation):
-            u = np.clip(u, -e.limit_a, e.limit_a)
-        elif isinstance(e, TorqueConstantVariation):
-            u = u * e.factor(position)
-        else:
-            u = np.vectorize(e.input_map, otypes=[float])(u, position)
+        if e.kind == "input":
+            u = e.input_map(u, position)
     return u
 
 
 def eval_forces(plant: ModalPlant, position: np.ndarray, velocity: np.ndarray,
                 v_scale: float = 0.0) -> np.ndarray:
-    """Undelayed current-equivalent force [A]: bias, pivot rest offset, ``force`` effects.
+    """Undelayed current-equivalent force [A]: bias, pivot rest offset, ``force`` effects (each
+    effect's own :meth:`~identification.model.effects.Effect.force` on arrays).
 
     ``v_scale`` [track/s] smooths ``sign(v)`` as ``tanh(v / v_scale)`` (velocity estimated
     from a noisy position: near zero velocity its sign is unknown)."""
+    ops = numpy_ops(SmoothingSettings(friction_velocity_tps=v_scale)) if v_scale > 0 else NUMPY
     f = np.full(np.shape(position), float(plant.bias_a))
     for e in plant.effects:
         if isinstance(e, PivotSpringDamper):
-            f += (2 * np.pi * e.freq_hz) ** 2 * e.rest_track / plant.k0
-        elif isinstance(e, PositionBias):
-            f += np.interp(position, e.knots_track, e.bias_a)
-        elif isinstance(e, Friction):
-            s = np.tanh(velocity / v_scale) if v_scale > 0 else np.sign(velocity)
-            f += -e.coulomb_a * s - e.viscous_a_per_tps * velocity
+            f += e.rest_force_a(plant.k0)
         elif e.kind == "force":
-            f += np.vectorize(e.force, otypes=[float])(position, velocity)
+            f += e.force(position, velocity, ops)
     return f
 
 

@@ -23,13 +23,12 @@ import numpy as np
 
 from identification.loop.grid import eval_forces, eval_inputs
 from identification.loop.linear import LinearModel
-from identification.model.effects import AmplifierLag
 from identification.model.plant import ModalPlant
 
 __all__ = ["step_seeks", "flexible_response"]
 
 
-def step_seeks(plant: ModalPlant, dt: float, U: np.ndarray, spans: list, anchors: dict, cache=None):
+def step_seeks(plant: ModalPlant, dt: float, U: np.ndarray, spans: list, anchors: dict):
     """Simulate ``plant`` over the runs ``spans`` (``[(a, b)]`` samples), ``U`` ``(n, S)`` the command
     current [A] held over each of the ``S`` steps of a sample, ``anchors`` ``{sample: (position,
     velocity)}`` where the rigid state is set (each run's start must be one).
@@ -42,7 +41,7 @@ def step_seeks(plant: ModalPlant, dt: float, U: np.ndarray, spans: list, anchors
     h = dt / S
     dp = plant.discretize(h)
     m = dp.m
-    lag = dp.n - 1 if any(isinstance(e, AmplifierLag) for e in plant.effects) else None
+    lag = dp.lag
     P, gn, go, gf = dp.Phi[:2, :2], dp.G_new[:2], dp.G_old[:2], dp.G_f[:2]
     pl = dp.Phi[:2, lag] if lag is not None else None
     A0 = np.array([a for a, _ in spans]); lens = np.array([b - a for a, b in spans])

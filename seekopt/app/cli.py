@@ -239,13 +239,8 @@ def _blas_threads():
     n = int(raw) if raw.isdigit() else 1
     if n == 0:
         return contextlib.nullcontext()
-    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(var, str(n))          # for BLAS libraries loaded later (workers, plugins)
-    import numpy  # noqa: F401  (numpy and scipy each bring their own OpenBLAS: load both, so that
-    import scipy.linalg  # noqa: F401  threadpoolctl limits both, not only the one loaded first)
-    from threadpoolctl import threadpool_limits
-    return threadpool_limits(limits=n)
-
+    from seekopt.evaluate.engines import limit_blas
+    return limit_blas(n, override_env=False)
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -124,7 +124,6 @@ class SeekDesigner:
             h = max(horizon, 2 * self._maps_h)
             # a plant of the set whose gain differs plays the profile through its drive's gain calibration
             self._maps = [scale_feedforward_maps(_qp.LoopMaps(p, self.controller, h), p) for p in self.plants]
-            self._maps_plants = list(self.plants)
             self._maps_h = h
             self.map_builds += 1
         return self._maps

@@ -13,7 +13,7 @@ import numpy as np
 from identification.model.plant import ModalPlant, Mode
 
 from seekopt.design.members import family_spread, member
-from seekopt.design.robust import _sylvester   # the one Sylvester-Hadamard construction (robust vertices too)
+from seekopt.design.robust import orthogonal_array_signs   # the one Sylvester-Hadamard construction (robust vertices too)
 
 __all__ = ["drifted", "drift_set"]
 
@@ -119,13 +119,9 @@ def drift_set(nominal: ModalPlant, family, drift) -> list:
                 out.append(_vary(nominal, f"modes {what} {'+' if sgn > 0 else '-'}", **kw))
     factors = [(kind, i) for kind, arr in (("f", rng_.df), ("z", rng_.dz), ("g", rng_.dg)) for i in range(n) if arr[i] > 0]
     if drift.n_samples and factors:
-        H = _sylvester(drift.n_samples)
-        rng = np.random.default_rng(drift.seed)
-        cols = 1 + np.resize(rng.permutation(H.shape[1] - 1), len(factors))
-        for r, row in enumerate(H[1:1 + drift.n_samples], 1):
-            s = {"f": np.zeros(n), "z": np.zeros(n), "g": np.zeros(n)}
-            for (kind, i), c in zip(factors, cols):
-                s[kind][i] = row[c]
+        rows = orthogonal_array_signs(factors, drift.n_samples, {"f": n, "z": n, "g": n},
+                                      np.random.default_rng(drift.seed))
+        for r, s in enumerate(rows, 1):
             out.append(_vary(nominal, f"oa {r}", sf=s["f"] * rng_.df, sz=s["z"] * rng_.dz, sg=s["g"] * rng_.dg))
     uniq, seen = [], set()
     for p in out:

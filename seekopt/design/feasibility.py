@@ -31,8 +31,8 @@ from scipy import optimize
 
 from identification.model.plant import ModalPlant
 
-from seekopt.design.metrics import SeekMetrics, settle_time
-from seekopt.design.profiles import Profile, t_bang_bang
+from seekopt.design.metrics import seek_metrics
+from seekopt.design.profiles import Profile
 from seekopt.drive.simulator import simulate_2dof
 
 __all__ = ["StartError", "position_dependent_effects", "fitted_range", "resolve_start", "hold_current",
@@ -147,15 +147,7 @@ def play_seek(plant: ModalPlant, controller, profile: Profile, start_track: floa
     sim = simulate_2dof(plant, controller, u + uh, start_track + r, position0=start_track, current0=uh,
                         disturbances=disturbances)
     pes = sim.true_position_track - (start_track + profile.tracks)
-    ts = settle_time(pes, fs, band)
-    after = pes[min(profile.seek_samples, n - 1):]
-    finite = bool(np.all(np.isfinite(after)))
-    tbb = t_bang_bang(profile.tracks, k0_for_tbb or plant.k0, profile.imax_a)
-    m = SeekMetrics(seek_time_s=profile.seek_time_s, settle_time_s=ts,
-                    peak_pes_after_track=float(np.max(np.abs(after))) if finite else math.inf,
-                    rms_pes_after_track=float(np.sqrt(np.mean(after ** 2))) if finite else math.inf,
-                    peak_current_a=float(sim.peak_current_a) if math.isfinite(sim.peak_current_a) else math.inf,
-                    ratio_tbb=ts / tbb if tbb > 0 else math.inf, settled=bool(math.isfinite(ts)))
+    m = seek_metrics(pes, sim.peak_current_a, profile, fs, band, k0_for_tbb or plant.k0)
     return m, sim
 
 

@@ -58,6 +58,7 @@ import numpy as np
 
 from identification.model.plant import ModalPlant
 
+from seekopt.design.search import bisect_length
 from seekopt.design.velocity_step import StepQP, VelocityStep
 
 __all__ = ["LongSeekSpec", "VelocityStep", "LongSeekDesigner", "LongSeekError", "vmax_from_plant",
@@ -240,13 +241,13 @@ class LongSeekDesigner:
             lo, nmax = nmax, int(math.ceil(1.5 * nmax))
         if best is None:
             raise LongSeekError(f"no velocity step to {velocity_track_s:g} track/s within 4096 samples")
-        while hi - lo > 1:                         # feasibility is monotone in N: bisection
-            mid = (lo + hi) // 2
-            s = qp.solve(d, mid, self.beta, self.gamma, hf_tol, x0=best.x); n_solves += 1
-            if s.success:
-                hi, best = mid, s
-            else:
-                lo = mid
+        solves = []
+
+        def probe(n, warm=None, confirm=True):    # the step QP decides on the whole problem: no confirmation
+            solves.append(n)
+            return qp.solve(d, n, self.beta, self.gamma, hf_tol, x0=warm)
+        hi, best = bisect_length(probe, lo, hi, best, lambda n: False)     # feasibility is monotone in N
+        n_solves += len(solves)
         u, w = qp.unpack(best.x, hi)
         u = np.clip(u, -self.imax, self.imax)
         u += (d / c - u.sum()) / hi                  # exact velocity (least-norm correction, ~1e-12 A)
@@ -294,9 +295,6 @@ class LongSeekDesigner:
         return int(S), int(m_ok)
 
     # ------------------------------------------------------------------ seeks
-    def coast_velocity(self) -> float | None:
-        return self.spec.vmax_track_s
-
     def needs_coast(self, tracks: float) -> bool:
         """True when a velocity limit is set and the seek is long enough to coast at it."""
         v = self.spec.vmax_track_s

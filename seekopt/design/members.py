@@ -10,6 +10,8 @@ import numpy as np
 
 from identification.model.plant import ModalPlant
 
+from seekopt.design.predict import calibrated
+
 __all__ = ["match_modes", "family_spread", "member", "label_set"]
 
 
@@ -28,10 +30,9 @@ def match_modes(a: ModalPlant, b: ModalPlant, tol: float = 0.15, scale: float = 
 
 def member(p: ModalPlant, k: int, design_k0: float) -> ModalPlant:
     """Family member ``k``: labelled, and played with its drive's gain calibration (:func:`seekopt.design.predict.calibrated`)."""
-    meta = dict(p.meta or {})
-    meta["set_label"] = f"member {k}" + (f": {meta['family_name']}" if meta.get("family_name") else "")
-    meta["ff_scale"] = float(design_k0) / float(p.k0)
-    return p.copy(meta=meta)
+    q = calibrated(p, design_k0)
+    q.meta["set_label"] = f"member {k}" + (f": {q.meta['family_name']}" if q.meta.get("family_name") else "")
+    return q
 
 
 def label_set(plants: list, family=()) -> list:

@@ -25,7 +25,8 @@ from seekopt.drive.simulator import closed_loop_responses
 # solver names re-exported for callers of the former combined module
 from seekopt.design.modal_residual import (dtft, hf_guard_matrix, mode_residual_phasors,  # noqa: F401
                                             mode_residual_rows, mode_residuals)
-from seekopt.design.solvers import QP_PLUGINS, ConicQP, IpoptQP, QPSolution, dm, make_qp_solver  # noqa: F401
+from seekopt.design.solvers import (QP_PLUGINS, ConicQP, IpoptQP, QPSolution, constraint_violation, dm,  # noqa: F401
+                                     make_qp_solver)
 
 __all__ = ["LoopMaps", "toeplitz_rows", "hf_guard_matrix", "mode_residual_phasors", "mode_residual_rows", "mode_residuals", "dtft", "pes_row_samples", "SeekQP"]
 
@@ -250,6 +251,7 @@ class SeekQP:
         self._P0, self._P1, self._P2 = P + w * E0.T @ E0, w * (E0.T @ E1 + E1.T @ E0), w * E1.T @ E1
         self._q1, self._q2 = w * E0.T @ e1, w * E1.T @ e1   # g = K q1 + K|K| q2
         self._dm_cache = None      # casadi copies of the full matrices, made on first full solve
+        self._mat_K, self._mat = None, None      # (H, A) of the last |K| (matrices())
         self._make_solver, self._solver = solver, None
         # row masks of bounds() (computed once)
         self._pes = np.isin(self.kind, ("pes", "pes_hi", "pes_lo")) & np.isin(self.plant_idx, list(self.band_plants))
@@ -289,7 +291,7 @@ class SeekQP:
         solves many lengths of one seek).  Solvers read them through zero-copy buffers
         (:meth:`seekopt.design.solvers.ConicQP.solve`)."""
         aK = abs(K)
-        if getattr(self, "_mat_K", None) != aK:
+        if self._mat_K != aK:
             self._mat = (self._P0 + aK * self._P1 + aK * aK * self._P2, self.A0 + aK * self.A1)
             self._mat_K = aK
         return self._mat
@@ -341,14 +343,8 @@ class SeekQP:
         """Largest constraint violation of ``x`` relative to the size of the terms summed in each
         row (``max(1, sum_j |a_ij x_j|)``: the cancellation level) -- re-checks a solver's answer.
         ``A``: the constraint matrix at ``K`` when already at hand."""
-        if not np.all(np.isfinite(x)):
-            return float("inf")
         A = self.A0 + abs(K) * self.A1 if A is None else A
-        ax = A @ x
-        scale = np.maximum(1.0, np.abs(A) @ np.abs(x))
-        v = np.concatenate([(lba - ax) / scale, (ax - uba) / scale, lbx - x, x - ubx])
-        v = v[np.isfinite(v)]
-        return float(max(np.max(v), 0.0)) if v.size else 0.0
+        return constraint_violation(A, x, lba, uba, lbx, ubx)
 
     def unpack(self, x: np.ndarray, K: float, nseek: int):
         """``(u_ff [A], r [track, relative] or None)`` over ``nseek`` samples."""

@@ -173,15 +173,29 @@ class RobustSpec:
         factors = ([("f", i) for i in range(n) if f[i]] + [("g", i) for i in range(n) if g[i]]
                    + [("d", 0)] * bool(d) + [("k", 0)] * bool(k))
         if self.n_samples and factors:
-            H = _sylvester(self.n_samples)
             rng = np.random.default_rng(self.seed)
-            cols = 1 + np.resize(rng.permutation(H.shape[1] - 1), len(factors))
-            for row in H[1:1 + self.n_samples]:
-                sg = {"f": np.zeros(n), "g": np.zeros(n), "d": np.zeros(1), "k": np.zeros(1)}
-                for (kind, i), c in zip(factors, cols):
-                    sg[kind][i] = row[c]
+            for sg in orthogonal_array_signs(factors, self.n_samples, {"f": n, "g": n, "d": 1, "k": 1}, rng):
                 out.append(var(sf=sg["f"], sg=sg["g"], sd=sg["d"][0], sk=sg["k"][0], sz=rng.uniform(-1, 1, n)))
         return out
+
+
+def orthogonal_array_signs(factors: list, n_rows: int, sizes: dict, rng) -> list:
+    """Sign rows of an orthogonal array of strength 2 over ``factors``.
+
+    ``factors``: ``(kind, index)`` pairs; ``sizes``: the length of each kind's sign array.  The factors
+    are columns (a random permutation from ``rng``) of rows ``1..n_rows`` of the Sylvester-Hadamard
+    matrix of the smallest order ``> n_rows`` (row 0, all +, is a corner): every pair of factors sees
+    all four sign pairs equally often.  Returns one ``{kind: signs}`` dict per row.
+    """
+    H = _sylvester(n_rows)
+    cols = 1 + np.resize(rng.permutation(H.shape[1] - 1), len(factors))
+    rows = []
+    for row in H[1:1 + n_rows]:
+        s = {kind: np.zeros(m) for kind, m in sizes.items()}
+        for (kind, i), c in zip(factors, cols):
+            s[kind][i] = row[c]
+        rows.append(s)
+    return rows
 
 
 def _sylvester(nrows: int) -> np.ndarray:

@@ -31,7 +31,7 @@ import numpy as np
 from seekopt.design.certificates import farkas_certificate, proves_infeasible  # noqa: F401
 
 __all__ = ["QPStatus", "classify_status", "QPSolution", "ConicQP", "IpoptQP", "make_qp_solver", "SolverChain",
-           "QP_PLUGINS", "dm", "proves_infeasible", "farkas_certificate"]
+           "QP_PLUGINS", "dm", "proves_infeasible", "farkas_certificate", "constraint_violation"]
 
 #: ``casadi.conic`` plugins the designer accepts.
 QP_PLUGINS = ("daqp", "qpoases", "highs", "osqp", "proxqp", "qrqp")
@@ -290,6 +290,19 @@ class IpoptQP:
         ok = ok and bool(np.all(np.isfinite(x)))
         return QPSolution(x, lam[:self.m] if lam.size >= self.m else np.full(self.m, np.nan),
                           np.zeros(self.n), ok, status, dt, dc, classify_status("ipopt", status, ok), "ipopt")
+
+
+def constraint_violation(A: np.ndarray, x: np.ndarray, lba, uba, lbx, ubx) -> float:
+    """Largest violation of ``lba <= A x <= uba, lbx <= x <= ubx`` by ``x``, each row relative to the
+    size of the terms it sums (``max(1, sum_j |a_ij x_j|)``: the cancellation level); ``inf`` for a
+    non-finite ``x``.  Re-checks a solver's answer against the data (never trust a status alone)."""
+    if not np.all(np.isfinite(x)):
+        return float("inf")
+    ax = A @ x
+    scale = np.maximum(1.0, np.abs(A) @ np.abs(x))
+    v = np.concatenate([(lba - ax) / scale, (ax - uba) / scale, lbx - x, x - ubx])
+    v = v[np.isfinite(v)]
+    return float(max(np.max(v), 0.0)) if v.size else 0.0
 
 
 def make_qp_solver(n: int, m: int, solver: str = "daqp", options: dict | None = None):

@@ -190,12 +190,12 @@ class StepQP:
         lbx, ubx = np.zeros(2 * N), np.zeros(2 * N)
         lbx[:nseek], ubx[:nseek] = -1.0, 1.0
         lbx[N:N + nseek], ubx[N:N + nseek] = -self.wmax, self.wmax
+        from seekopt.design.solvers import constraint_violation
+
         def check(x):                              # never trust a status alone
             if not np.all(np.isfinite(x)):
                 return "non-finite answer"
-            ax = self.A @ x
-            scale = np.maximum(1.0, np.abs(self.A) @ np.abs(x))
-            viol = max(np.max((lba - ax) / scale), np.max((ax - uba) / scale), np.max(lbx - x), np.max(x - ubx))
+            viol = constraint_violation(self.A, x, lba, uba, lbx, ubx)
             return f"constraint violation {viol:.2g}" if viol > self.violation_tol else ""
         # numerical trouble moves on to the fallback solvers before anything is called infeasible
         return self.solver.solve(self._H, np.zeros(2 * N), self._A, lba, uba, lbx, ubx, x0=x0, check=check)

@@ -70,7 +70,6 @@ class WorkingSetQP:
         self.max_rounds, self.max_fraction, self.max_add = int(max_rounds), float(max_fraction), float(max_add)
         self._chains: dict = {}
         self._hint = np.zeros(0, dtype=int)      # rows that bound the last answer
-        self._K, self._H, self._A = None, None, None
         self.rounds = 0                          # reduced solves (statistics)
         self.full_solves = 0
         self.proofs = 0                          # reduced 'infeasible' with a verified certificate
@@ -86,12 +85,6 @@ class WorkingSetQP:
             self._chains[key] = self._make_chain(n, bucket)
         return self._chains[key]
 
-    def _matrices(self, K: float):
-        if self._K != K:
-            self._H, self._A = self.qp.matrices(K)
-            self._K = K
-        return self._H, self._A
-
     def solve(self, K: float, nseek: int, beta, gamma: float, hf_tol, slew_a_per_s=None, x0=None,
               check=None, confirm: bool = True) -> QPSolution:
         """The QP of ``SeekQP.data(K, nseek, beta, gamma, hf_tol, slew_a_per_s)``; ``check(x, A)``
@@ -102,7 +95,7 @@ class WorkingSetQP:
         lengths its answer rests on with ``confirm=True``: the full QP decides)."""
         qp = self.qp
         g, lba, uba, lbx, ubx = qp.bounds(K, nseek, beta, gamma, hf_tol, slew_a_per_s)
-        H, A = self._matrices(K)
+        H, A = self.qp.matrices(K)
         fv = np.flatnonzero(lbx < ubx)                          # free variables
         xfix = np.where(lbx == ubx, lbx, 0.0)
         cand = np.flatnonzero(np.isfinite(lba) | np.isfinite(uba))

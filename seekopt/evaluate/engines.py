@@ -41,7 +41,7 @@ import time
 import uuid
 
 __all__ = ["EngineError", "Engine", "SerialEngine", "PoolEngine", "DaskEngine", "make_engine", "make_pool",
-           "worker_held", "one_blas_thread", "one_line"]
+           "worker_held", "one_blas_thread", "limit_blas", "one_line"]
 
 _BLAS_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "VECLIB_MAXIMUM_THREADS")
 _PR_SET_PDEATHSIG = 1
@@ -58,16 +58,28 @@ def one_line(exc: BaseException) -> str:
 
 
 # ------------------------------------------------------------------ worker set-up
-def one_blas_thread() -> None:
-    """Limit this process to one BLAS/OpenMP thread (environment for libraries loaded later,
-    threadpoolctl for those already loaded)."""
+def limit_blas(n: int = 1, *, override_env: bool = True):
+    """Limit this process to ``n`` BLAS/OpenMP threads; returns the :mod:`threadpoolctl` limiter (also a
+    context manager that restores the previous limits on exit).
+
+    The environment variables cover libraries loaded later (``override_env=False`` keeps a value the
+    user set).  numpy and scipy each bring their own OpenBLAS, and threadpoolctl limits only the
+    libraries already loaded: both are loaded first, so the one loaded second does not escape.
+    """
     for var in _BLAS_VARS:
-        os.environ[var] = "1"
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:      # pragma: no cover - threadpoolctl is a dependency
-        return
-    threadpool_limits(1)
+        if override_env:
+            os.environ[var] = str(n)
+        else:
+            os.environ.setdefault(var, str(n))
+    import numpy  # noqa: F401
+    import scipy.linalg  # noqa: F401
+    from threadpoolctl import threadpool_limits
+    return threadpool_limits(limits=n)
+
+
+def one_blas_thread() -> None:
+    """Limit this (worker) process to one BLAS/OpenMP thread (:func:`limit_blas`)."""
+    limit_blas(1)
 
 
 def _die_with_parent(parent_pid: int, pdeathsig: bool) -> None:

@@ -83,14 +83,12 @@ class Anchor:
 class AnchorDesigner:
     """``designer.design(K)`` with a cache, the measured settle and the rigid peak velocity.
 
-    ``known`` maps lengths to already designed :class:`seekopt.design.profiles.Profile` (a sweep's cells).
     A length whose design fails (infeasible, solver, check) returns None.
     """
 
-    def __init__(self, designer, plant, controller, settle: float, known: dict | None = None, progress=None):
+    def __init__(self, designer, plant, controller, settle: float, progress=None):
         self.designer, self.plant, self.controller, self.settle = designer, plant, controller, float(settle)
         self.fs = float(controller.sample_rate_hz)
-        self.known = dict(known or {})
         self.cache: dict = {}
         self.progress = progress
         self.n_designs = 0
@@ -101,16 +99,14 @@ class AnchorDesigner:
         K = int(K)
         if K in self.cache:
             return self.cache[K]
-        prof = self.known.get(K)
-        if prof is None:
-            try:
-                prof = self.designer.design(float(K)).profile
-            except Exception:   # noqa: BLE001 - an infeasible or failed length is not an anchor
-                prof = None
-            self.n_designs += 1
-            if self.progress is not None:
-                self.progress.update(1)
-                self.progress.set_postfix_str(f"K={K}", refresh=False)
+        try:
+            prof = self.designer.design(float(K)).profile
+        except Exception:   # noqa: BLE001 - an infeasible or failed length is not an anchor
+            prof = None
+        self.n_designs += 1
+        if self.progress is not None:
+            self.progress.update(1)
+            self.progress.set_postfix_str(f"K={K}", refresh=False)
         a = None
         if prof is not None:
             m = evaluate_profile(self.plant, self.controller, prof, settle=self.settle)

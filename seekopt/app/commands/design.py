@@ -2,10 +2,9 @@
 predicted settle times on every plant of the robust set and the unmodelled-mode guard."""
 from __future__ import annotations
 
-import math
 import sys
 
-from seekopt.app.commands.common import UsageError, check_output_file, check_seek_args, progress
+from seekopt.app.commands.common import UsageError, check_output_file, check_positive, check_seek_args, progress
 from seekopt.app.commands.inputs import plant_family, robust_choice
 
 __all__ = ["cmd_design", "first_path"]
@@ -56,8 +55,8 @@ def cmd_design(args) -> int:
         return _design_with_effects(args, plant, controller, robust, start, names)
     from seekopt.design.longseek import LongSeekDesigner, LongSeekError, LongSeekSpec
     for name, v in (("--vmax", args.vmax), ("--stroke", args.stroke)):
-        if v is not None and not (math.isfinite(v) and v > 0):
-            raise UsageError(f"{name} must be a positive number (got {v})")
+        if v is not None:
+            check_positive(v, name)
     try:
         spec = LongSeekSpec.from_plant(plant, args.imax, args.vmax, args.stroke)
     except LongSeekError as exc:

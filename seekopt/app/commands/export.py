@@ -2,10 +2,9 @@
 is known), or of one design (:mod:`seekopt.export`)."""
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
-from seekopt.app.commands.common import UsageError, check_output_dir, progress
+from seekopt.app.commands.common import check_output_dir, check_positive, progress
 
 __all__ = ["cmd_export"]
 
@@ -24,8 +23,7 @@ def cmd_export(args) -> int:
         print(f"export: one design ({t.tracks} tracks, {t.ff_len} feedforward samples, {ts.meta['ref_format']} "
               "reference) -> " + ", ".join(map(str, paths)))
         return 0
-    if not (math.isfinite(args.budget_kib) and args.budget_kib > 0):
-        raise UsageError(f"--budget-kib must be a positive number (got {args.budget_kib})")
+    check_positive(args.budget_kib, "--budget-kib")
     stroke_mm = playable.sweep_stroke_mm(src, args.stroke_mm, args.vmax_mps) if src.is_dir() else None
     with progress(args, f"quantising the tables of {args.results}"):
         ts = load_tables(args.results)

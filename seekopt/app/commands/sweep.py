@@ -4,7 +4,7 @@ from __future__ import annotations
 import sys
 
 from seekopt.app.commands.common import UsageError, check_output_dir, check_positive
-from seekopt.app.commands.inputs import plant_family, robust_choice
+from seekopt.app.commands.inputs import plant_family
 
 __all__ = ["cmd_sweep"]
 
@@ -19,8 +19,6 @@ def cmd_sweep(args) -> int:
     if args.workers is not None and args.workers < 1:
         raise UsageError(f"--workers must be at least 1 (got {args.workers})")
     plant, family, controller, _ = plant_family(args.plant, args.controller)
-    if args.drift:
-        robust_choice(args, plant)                 # a bad --drift is an input error before anything runs
     cfg = SweepConfig(plant, controller, parse_tpi(args.tpi), parse_tracks(args.tracks), args.imax, args.settle,
                       designer=args.designer, family=family, drift=",".join(args.drift) or None)
     s = run_sweep(cfg, args.output, engine=args.dask or "process", workers=args.workers,
