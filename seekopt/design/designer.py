@@ -182,8 +182,9 @@ class SeekDesigner:
         def check(x, A=None):       # never trust a status alone: re-check the answer against the data
             viol = qp.violation(x, K, *bounds[1:], A=A)
             return f"constraint violation {viol:.2g}" if viol > tol else ""
-        if self.settings.working_set and (len(self.plants) > 1 or qp.m >= WORKING_SET_MIN_ROWS):
-            sol = self._working_set(qp).solve(*args, x0=warm, check=check, confirm=confirm)
+        if self.settings.working_set:     # rows screened on a plant set and big structures, else all rows
+            screen = len(self.plants) > 1 or qp.m >= WORKING_SET_MIN_ROWS
+            sol = self._working_set(qp).solve(*args, x0=warm, check=check, confirm=confirm, screen=screen)
             if getattr(sol, "unconfirmed", False):
                 stats.unconfirmed.add((id(qp), n))
         else:

@@ -76,23 +76,36 @@ class WorkingSetQP:
         self.lp_proofs = 0                       # reduced 'infeasible' proven by the phase-1 LP
         self.second_opinions = 0                 # reduced 'infeasible' without one: fallbacks asked
 
-    def _chain(self, n: int, m: int) -> SolverChain:
-        bucket = 32
-        while bucket < m:
-            bucket *= 2
+    def _chain(self, n: int, m: int, step: int | None = None) -> SolverChain:
+        """Solver chain for ``n`` variables and ``m`` rows, padded to a power of two (``step``: to a
+        multiple of ``step`` rows instead: the whole-row solves, whose padding rows daqp would carry
+        through every iteration)."""
+        if step:
+            bucket = -(-m // step) * step
+        else:
+            bucket = 32
+            while bucket < m:
+                bucket *= 2
         key = (n, bucket)
         if key not in self._chains:
             self._chains[key] = self._make_chain(n, bucket)
         return self._chains[key]
 
     def solve(self, K: float, nseek: int, beta, gamma: float, hf_tol, slew_a_per_s=None, x0=None,
-              check=None, confirm: bool = True) -> QPSolution:
+              check=None, confirm: bool = True, screen: bool = True) -> QPSolution:
         """The QP of ``SeekQP.data(K, nseek, beta, gamma, hf_tol, slew_a_per_s)``; ``check(x, A)``
         (full-problem re-check, returns a note or '') as in :meth:`SolverChain.solve`.
 
         ``confirm=False``: a reduced "infeasible" of the primary that fails the Farkas check is
         returned as it is, marked ``sol.unconfirmed = True`` (a search step; the caller confirms the
-        lengths its answer rests on with ``confirm=True``: the full QP decides)."""
+        lengths its answer rests on with ``confirm=True``: the full QP decides).
+
+        ``screen=False``: no row screening -- one solve of the QP on its free variables with every
+        row that has a bound (the fixed variables substituted, the free rows dropped).  That QP is the
+        full QP without what cannot change its answer (same optimum, same feasibility), so its answer
+        and its solvers' "infeasible" stand as the full QP's would (nominal structures of 1300-1800
+        rows: 2-3x less CPU than the full QP, where the pinned samples past the seek are a third of
+        the variables)."""
         qp = self.qp
         g, lba, uba, lbx, ubx = qp.bounds(K, nseek, beta, gamma, hf_tol, slew_a_per_s)
         H, A = self.qp.matrices(K)
@@ -105,6 +118,8 @@ class WorkingSetQP:
         lbr, ubr = lbx[fv], ubx[fv]
         work = np.zeros(len(cand), dtype=bool)
         work |= lc == uc                                       # equalities
+        if not screen:
+            work[:] = True
         work |= np.isin(cand, self._hint)                      # rows that bound the last answer
         x = None
         if x0 is not None and np.all(np.isfinite(x0)):
@@ -116,11 +131,11 @@ class WorkingSetQP:
         A_fixed = A[:, lbx == ubx] @ xfix[lbx == ubx] if np.any(xfix) else None
         why = "rounds"
         for _ in range(self.max_rounds):
-            if work.sum() > self.max_fraction * len(cand):
+            if screen and work.sum() > self.max_fraction * len(cand):
                 why = f"working set {work.sum()} of {len(cand)} rows"
                 break
             rows = np.flatnonzero(work)
-            chain = self._chain(len(fv), len(rows))
+            chain = self._chain(len(fv), len(rows), None if screen else 64)
             mb = chain.m
             Ar = np.zeros((mb, len(fv)))
             Ar[:len(rows)] = A[np.ix_(cand[rows], fv)]
@@ -134,6 +149,8 @@ class WorkingSetQP:
             wall, cpu = wall + sol.solve_time_s, cpu + sol.cpu_time_s
             attempts += sol.attempts
             if sol.outcome is QPStatus.INFEASIBLE:
+                if not screen:          # every row: the full QP's "infeasible", at the full QP's trust
+                    return self._done(self._full(sol, fv, xfix, rows, cand), attempts, wall, cpu)
                 if sol.solver != chain.name or proves_infeasible(Ar, lr, ur, lbr, ubr, sol.lam_a):
                     self.proofs += sol.solver == chain.name
                     return self._done(self._full(sol, fv, xfix, rows, cand), attempts, wall, cpu)
