@@ -252,6 +252,7 @@ class SeekQP:
         self._q1, self._q2 = w * E0.T @ e1, w * E1.T @ e1   # g = K q1 + K|K| q2
         self._dm_cache = None      # casadi copies of the full matrices, made on first full solve
         self._mat_K, self._mat = None, None      # (H, A) of the last |K| (matrices())
+        self._abs_A = None                       # |A| of the last |K| (violation())
         self._make_solver, self._solver = solver, None
         # row masks of bounds() (computed once)
         self._pes = np.isin(self.kind, ("pes", "pes_hi", "pes_lo")) & np.isin(self.plant_idx, list(self.band_plants))
@@ -293,7 +294,7 @@ class SeekQP:
         aK = abs(K)
         if self._mat_K != aK:
             self._mat = (self._P0 + aK * self._P1 + aK * aK * self._P2, self.A0 + aK * self.A1)
-            self._mat_K = aK
+            self._mat_K, self._abs_A = aK, None
         return self._mat
 
     def numeric(self, K: float, nseek: int, beta: float | None, gamma: float, hf_tol: float | None,
@@ -343,7 +344,11 @@ class SeekQP:
         """Largest constraint violation of ``x`` relative to the size of the terms summed in each
         row (``max(1, sum_j |a_ij x_j|)``: the cancellation level) -- re-checks a solver's answer.
         ``A``: the constraint matrix at ``K`` when already at hand."""
-        A = self.A0 + abs(K) * self.A1 if A is None else A
+        if A is None or (self._mat_K == abs(K) and A is self._mat[1]):
+            A = self.matrices(K)[1]         # the kept matrix and its |A| (one copy per seek length)
+            if self._abs_A is None:
+                self._abs_A = np.abs(A)
+            return constraint_violation(A, x, lba, uba, lbx, ubx, abs_A=self._abs_A)
         return constraint_violation(A, x, lba, uba, lbx, ubx)
 
     def unpack(self, x: np.ndarray, K: float, nseek: int):

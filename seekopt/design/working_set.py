@@ -70,6 +70,7 @@ class WorkingSetQP:
         self.max_rounds, self.max_fraction, self.max_add = int(max_rounds), float(max_fraction), float(max_add)
         self._chains: dict = {}
         self._hint = np.zeros(0, dtype=int)      # rows that bound the last answer
+        self._unproven: dict = {}                # problem -> working set of its unconfirmed "infeasible"
         self.rounds = 0                          # reduced solves (statistics)
         self.full_solves = 0
         self.proofs = 0                          # reduced 'infeasible' with a verified certificate
@@ -121,10 +122,14 @@ class WorkingSetQP:
         if not screen:
             work[:] = True
         work |= np.isin(cand, self._hint)                      # rows that bound the last answer
+        key = (float(K), int(nseek), beta, float(gamma), hf_tol, slew_a_per_s)
+        seen = self._unproven.pop(key, None)
+        if seen is not None and seen.shape == work.shape:     # confirming a search step's "infeasible":
+            work |= seen                                       # start from the rows it ended on
         x = None
         if x0 is not None and np.all(np.isfinite(x0)):
             x = np.clip(x0, lbx, ubx)
-            r = A[cand] @ x
+            r = (A @ x)[cand]           # not A[cand] @ x: that copies the whole matrix (11000 x 192 robust)
             self._add(work, np.maximum(r - uc, lc - r) + self.screen_margin, len(fv))
         wall = cpu = 0.0
         attempts = []
@@ -155,6 +160,7 @@ class WorkingSetQP:
                     self.proofs += sol.solver == chain.name
                     return self._done(self._full(sol, fv, xfix, rows, cand), attempts, wall, cpu)
                 if not confirm:
+                    self._unproven = {key: work.copy()}
                     out = self._full(sol, fv, xfix, rows, cand)
                     out.unconfirmed = True
                     return self._done(out, attempts, wall, cpu)
@@ -176,7 +182,7 @@ class WorkingSetQP:
                 break
             x = xfix.copy()
             x[fv] = sol.x
-            r = A[cand] @ x
+            r = (A @ x)[cand]
             viol = np.maximum(r - uc, lc - r)
             if not np.any((viol > self.add_tol) & ~work):
                 full = self._full(sol, fv, xfix, rows, cand)
