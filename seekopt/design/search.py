@@ -6,9 +6,10 @@ always wait), so the shortest feasible ``N`` is found by bisection (:func:`bisec
 (``.success``, ``.x``); ``confirm=False`` lets a reduced (working-set) QP's unproven "infeasible"
 steer the search, and the one length the answer rests on is confirmed before it stands.
 
-A sweep designs neighbouring lengths one after another; the settle/T_bb ratio of the nearest earlier
-designs predicts where the next one's shortest feasible length lies, so the search starts there
-instead of scanning the size classes from the shortest (``studies/design_speed.py``).
+A sweep designs neighbouring lengths one after another; the settle overhead (designed settle samples
+minus the rigid bang-bang samples) of the nearest earlier designs predicts where the next one's
+shortest feasible length lies, so the search starts there instead of scanning the size classes from
+the shortest (``studies/design_speed.py``).
 """
 from __future__ import annotations
 
@@ -21,9 +22,13 @@ def predict_length(history: dict, n_rigid: int) -> int | None:
     """Settle samples predicted for a seek whose rigid bang-bang takes ``n_rigid`` samples.
 
     ``history`` maps the rigid bang-bang samples of earlier designs to their designed settle samples.
-    The prediction is the designed settle/T_bb ratio of the nearest earlier design (a sweep's neighbouring length, within a
-    factor 1.5 of ``n_rigid``), interpolated between the two nearest when they bracket it; None
-    when there is none."""
+    The prediction is ``n_rigid`` plus the settle overhead (designed settle samples - rigid samples)
+    of the nearest earlier design (a sweep's neighbouring length, within a factor 1.5 of
+    ``n_rigid``), interpolated between the two nearest when they bracket it; None when there is none.
+    The overhead varies less with the length than the settle/T_bb ratio, which falls as seeks get
+    longer (studies/design_speed.py's 4 x 10 predicted lengths: 13 exact and 27 within one sample,
+    sum of |errors| 60, against 2, 9 and 120 from the ratio, which overshot by 2-3 samples from
+    K = 290 on and cost the search 2-4 extra lengths)."""
     near = [k for k in history if 2 / 3 <= max(k, 1) / max(n_rigid, 1) <= 1.5]
     if not near:            # no neighbouring length designed yet: the class scan is cheaper than a bad guess
         return None
@@ -32,12 +37,12 @@ def predict_length(history: dict, n_rigid: int) -> int | None:
     above = [k for k in keys if k >= n_rigid]
     if below and above and below[-1] != above[0]:
         a, b = below[-1], above[0]
-        ra, rb = history[a] / max(a, 1), history[b] / max(b, 1)
-        ratio = ra + (rb - ra) * (n_rigid - a) / (b - a)
+        oa, ob = history[a] - a, history[b] - b
+        over = oa + (ob - oa) * (n_rigid - a) / (b - a)
     else:
         k = min(keys, key=lambda k: abs(math.log(max(k, 1) / max(n_rigid, 1))))
-        ratio = history[k] / max(k, 1)
-    return max(int(round(ratio * max(n_rigid, 1))), 1)
+        over = history[k] - k
+    return max(int(round(n_rigid + over)), 1)
 
 
 def bisect_length(probe, lo: int, hi: int, best, unconfirmed, floor: int | None = None):
