@@ -329,25 +329,35 @@ class SeekDesigner:
     def _predicted_search(self, K, n_rigid, first, lo, stats):
         """Search from the predicted length (:meth:`_predict`): in the size class the old scan would end
         in, probe the predicted length and its neighbour, gallop (steps 1, 2, 4, ...) towards the
-        boundary, then bisect.  Returns ``(qp, class, N, answer)`` or None (no prediction, or the
-        class holds no feasible length: the class scan decides)."""
+        boundary, then bisect.  When the class holds no feasible length, its longest seek is solved
+        with ``confirm=True``: a proof moves the search on to the next class (from the length after
+        it, as the scan would end there), anything else returns None and the class scan decides.
+        Returns ``(qp, class, N, answer)`` or None (no prediction: the scan decides)."""
         n_pred = self._predict(n_rigid)
         if n_pred is None:
             return None
         classes = self._classes(first)
         c = next((x for x in classes if x >= n_pred), classes[-1])
+        went_down = False
         while True:
             qp = self._structure(c, False)
             found = gallop_length(self._probe(qp, K, stats), lo, min(max(n_pred, lo + 1), c), c)
-            if found is None:
-                return None     # nothing in this class: the class scan goes on from here
+            if found is None:   # nothing in this class (search steps): is its longest seek proven infeasible?
+                later = [x for x in classes if x > c]
+                if went_down or not later or c <= lo:
+                    return None
+                top = self._solve(qp, K, c, self.beta, stats)
+                if not top.infeasible:
+                    return None     # feasible after all, or undecided: the class scan decides
+                lo, c, n_pred = c, later[0], c + 1
+                continue
             lo_c, hi, best = found
             hi, best = self._bisect(qp, K, lo_c, hi, best, stats, floor=lo)
             # the scan takes the first class whose longest seek is feasible: a smaller class that holds
             # this length is that class (re-searched there, from this length)
             prev = [x for x in classes if x < c]
             if prev and hi <= prev[-1] and prev[-1] >= first:
-                c, n_pred = prev[-1], hi
+                c, n_pred, went_down = prev[-1], hi, True
                 continue
             return qp, c, hi, best
 

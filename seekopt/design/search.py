@@ -87,6 +87,8 @@ def gallop_length(probe, lo: int, n0: int, nmax: int):
                 return m, hi, best
             hi, best, step = m, t, 2 * step
         return lo, hi, best
+    if n0 >= nmax:
+        return None
     lo, step = n0, 1
     while True:
         m = min(lo + step, nmax)
