@@ -32,10 +32,11 @@ from __future__ import annotations
 
 import contextlib
 import math
+import sys
 from collections import Counter
 
 import numpy as np
-from threadpoolctl import threadpool_limits
+from threadpoolctl import ThreadpoolController
 
 from identification.model.plant import ModalPlant
 
@@ -59,6 +60,17 @@ __all__ = ["DesignInfeasible", "DesignError", "DesignResult", "SeekDesigner", "d
 #: CPU; a 3-plant drift set at K = 1000: 3 s against 12.7 s CPU, where daqp failed on the whole QP and the
 #: fallback solver took 11 s).
 WORKING_SET_MIN_ROWS = 2500
+
+_POOLS: list = [None, -1]      # ThreadpoolController, len(sys.modules) when it was made
+
+
+def _blas_pools() -> ThreadpoolController:
+    """The process's thread pools (threadpoolctl), found once: ``threadpool_limits`` scans the loaded
+    libraries (``/proc/self/maps``) on every call, 5 ms of a 20-50 ms nominal design.  Scanned again
+    when modules have been imported since (a new extension may bring its own BLAS)."""
+    if _POOLS[0] is None or _POOLS[1] != len(sys.modules):
+        _POOLS[:] = [ThreadpoolController(), len(sys.modules)]
+    return _POOLS[0]
 
 
 class SeekDesigner:
@@ -252,7 +264,7 @@ class SeekDesigner:
     def _blas(self):
         """BLAS thread limit for a design (:attr:`SolverSettings.blas_threads`)."""
         n = self.settings.blas_threads
-        return threadpool_limits(limits=int(n), user_api="blas") if n else contextlib.nullcontext()
+        return _blas_pools().limit(limits=int(n), user_api="blas") if n else contextlib.nullcontext()
 
     def design(self, tracks: float, seek_samples: int | None = None) -> DesignResult:
         """Design the seek of ``tracks`` tracks.
