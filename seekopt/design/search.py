@@ -4,7 +4,9 @@ Feasibility of the band-constrained QP is monotone in the seek length ``N`` (a l
 always wait), so the shortest feasible ``N`` is found by bisection (:func:`bisect_length`).
 ``probe(n, warm=None, confirm=True)`` solves the QP at ``n`` samples and returns the solution
 (``.success``, ``.x``); ``confirm=False`` lets a reduced (working-set) QP's unproven "infeasible"
-steer the search, and the one length the answer rests on is confirmed before it stands.
+steer the search, and the one length the answer rests on is confirmed before it stands.  A probe
+just below a feasible length (``hi - 1``) is made with ``confirm=True`` at once: if infeasible, the
+answer rests on it and it would be confirmed anyway (the confirmation is not a second solve).
 
 A sweep designs neighbouring lengths one after another; the settle overhead (designed settle samples
 minus the rigid bang-bang samples) of the nearest earlier designs predicts where the next one's
@@ -57,7 +59,7 @@ def bisect_length(probe, lo: int, hi: int, best, unconfirmed, floor: int | None 
     while True:
         while hi - lo > 1:
             mid = (lo + hi) // 2
-            s = probe(mid, best.x, False)
+            s = probe(mid, best.x, mid == hi - 1)
             if s.success:
                 hi, best = mid, s
             else:           # infeasible, or undecided: either way not a design at ``mid``
@@ -82,7 +84,7 @@ def gallop_length(probe, lo: int, n0: int, nmax: int):
         hi, best, step = n0, s, 1
         while hi - step > lo:
             m = hi - step
-            t = probe(m, best.x, False)
+            t = probe(m, best.x, m == hi - 1)
             if not t.success:
                 return m, hi, best
             hi, best, step = m, t, 2 * step
