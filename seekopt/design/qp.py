@@ -112,6 +112,24 @@ def pes_row_samples(nmax: int, horizon: int) -> np.ndarray:
     return np.concatenate(parts).astype(int)
 
 
+def _assemble(blocks, n: int, N: int):
+    """``(A0, A1)``: row blocks ``(a_v, a_q, t)`` placed into two ``(rows, n)`` arrays -- ``a_v`` on the
+    ``N`` feedforward columns and ``t`` (a number) on the epigraph column of ``A0``, ``a_q`` on the
+    reference columns ``N..`` of ``A1`` (one allocation each, no full-width copies per block)."""
+    m = sum(v.shape[0] for v, _, _ in blocks)
+    A0, A1 = np.zeros((m, n)), np.zeros((m, n))
+    r = 0
+    for v, q, t in blocks:
+        k = v.shape[0]
+        A0[r:r + k, :N] = v
+        if q is not None:
+            A1[r:r + k, N:N + q.shape[1]] = q
+        if t is not None:
+            A0[r:r + k, -1] = t
+        r += k
+    return A0, A1
+
+
 class SeekQP:
     """The condensed seek-design QP for seeks of at most ``nmax`` samples (one size class).
 
@@ -154,14 +172,7 @@ class SeekQP:
         ks = pes_row_samples(N, Hn)
         self.pes_k = ks
         ncur = min(Hn, N + current_extra)
-        A0, A1, c0, c1, kinds = [], [], [], [], []    # offsets: c = c0 + K c1 (band / Imax units)
-
-        def cols(a_v, a_q):
-            out0 = np.zeros((a_v.shape[0], n)); out1 = np.zeros((a_v.shape[0], n))
-            out0[:, :N] = a_v
-            if a_q is not None:
-                out1[:, N:N + nq] = a_q
-            return out0, out1
+        blocks, c0, c1, kinds = [], [], [], []    # offsets: c = c0 + K c1 (band / Imax units)
 
         if not self.free_ref:
             Rfull = np.asarray(R, float)[:Hn, :N]
@@ -172,28 +183,25 @@ class SeekQP:
             ksi = ks if i == 0 else ks_other
             Tyu, Tyr, syr = m.position_rows(ksi, N if self.free_ref else Hn)
             if self.free_ref:
-                a0, a1 = cols(imax * Tyu / band, Tyr / band)
+                av, aq = imax * Tyu / band, Tyr / band
                 off0, off1 = np.zeros(len(ksi)), (syr - 1.0) / band
             else:
-                a0, a1 = cols(imax * (Tyu[:, :N] + Tyr @ Rfull) / band, None)
+                av, aq = imax * (Tyu[:, :N] + Tyr @ Rfull) / band, None
                 off0, off1 = np.zeros(len(ksi)), -np.ones(len(ksi)) / band
             reps = ((-1.0, "pes_hi"), (1.0, "pes_lo")) if epigraph else ((0.0, "pes"),)
             for sgn, kind in reps:
-                b0 = a0.copy()
-                if epigraph:
-                    b0[:, -1] = sgn
-                A0.append(b0); A1.append(a1); c0.append(off0); c1.append(off1)
+                blocks.append((av, aq, sgn if epigraph else None)); c0.append(off0); c1.append(off1)
                 kinds += [(kind, i, int(k)) for k in ksi]
         for i, m in enumerate(maps):   # nominal: seek + 40 samples; other plants: seek + 8 (never thinned)
             Tiu, Tir, sir = m.current_rows(ncur if i == 0 else min(Hn, N + 8), N if self.free_ref else Hn)
             if self.free_ref:
-                a0, a1 = cols(Tiu, Tir / imax)
+                av, aq = Tiu, Tir / imax
                 off0, off1 = np.full(len(sir), m.hold_a / imax), sir / imax
             else:
-                a0, a1 = cols(Tiu[:, :N] + Tir @ Rfull, None)
+                av, aq = Tiu[:, :N] + Tir @ Rfull, None
                 off0, off1 = np.full(Tiu.shape[0], m.hold_a / imax), np.zeros(Tiu.shape[0])
-            A0.append(a0); A1.append(a1); c0.append(off0); c1.append(off1)
-            kinds += [("cur", i, j) for j in range(a0.shape[0])]
+            blocks.append((av, aq, None)); c0.append(off0); c1.append(off1)
+            kinds += [("cur", i, j) for j in range(av.shape[0])]
         if hf is not None:     # hf = (G, freqs): rows on the nominal plant's sub-step currents
             G = hf[0]
             m = maps[0]
@@ -201,30 +209,29 @@ class SeekQP:
             # the hold current -bias_a has been on since long before the seek: it leaves no residual in
             # a mode (over the finite horizon it would look like a step and bias the guard)
             if self.free_ref:
-                a0, a1 = cols(imax * G @ Tiu / band, G @ Tir / band)
+                av, aq = imax * G @ Tiu / band, G @ Tir / band
                 off0, off1 = np.zeros(G.shape[0]), G @ sir / band
             else:
-                a0, a1 = cols(imax * G @ (Tiu[:, :N] + Tir @ Rfull) / band, None)
+                av, aq = imax * G @ (Tiu[:, :N] + Tir @ Rfull) / band, None
                 off0, off1 = np.zeros(G.shape[0]), np.zeros(G.shape[0])
-            A0.append(a0); A1.append(a1); c0.append(off0); c1.append(off1)
+            blocks.append((av, aq, None)); c0.append(off0); c1.append(off1)
             kinds += [("hf", 0, j) for j in range(G.shape[0])]
         M = rigid_endpoint_matrix(N, maps[0].k0, 1.0 / fs)
         self.M = M
         # rows scaled by the bucket's reach: s_pos = k0 Ts^2 Imax N^2 / 4, s_vel = k0 Ts^2 Imax N
         self.s_pos = maps[0].k0 * imax * N * N / (4 * fs * fs)
         self.s_vel = maps[0].k0 * imax * N / (fs * fs)
-        a0 = np.zeros((2, n)); a0[0, :N] = M[0] * imax / self.s_pos; a0[1, :N] = M[1] * imax / self.s_vel
-        A0.append(a0); A1.append(np.zeros((2, n))); c0.append(np.zeros(2)); c1.append(np.zeros(2))
+        av = np.zeros((2, N)); av[0] = M[0] * imax / self.s_pos; av[1] = M[1] * imax / self.s_vel
+        blocks.append((av, None, None)); c0.append(np.zeros(2)); c1.append(np.zeros(2))
         kinds += [("rigid", 0, 0), ("rigid", 0, 1)]
         if slew is not None:
             D = np.eye(N + 1, N) - np.eye(N + 1, N, -1)
-            a0 = np.zeros((N + 1, n)); a0[:, :N] = D
-            A0.append(a0); A1.append(np.zeros((N + 1, n))); c0.append(np.zeros(N + 1)); c1.append(np.zeros(N + 1))
+            blocks.append((D, None, None)); c0.append(np.zeros(N + 1)); c1.append(np.zeros(N + 1))
             kinds += [("slew", 0, j) for j in range(N + 1)]
         self.kind = np.array([k[0] for k in kinds])
         self.plant_idx = np.array([k[1] for k in kinds])
         self.sample = np.array([k[2] for k in kinds])
-        self.A0, self.A1 = np.vstack(A0), np.vstack(A1)
+        self.A0, self.A1 = _assemble(blocks, n, N)
         self.c0, self.c1 = np.concatenate(c0), np.concatenate(c1)
         self.m = self.A0.shape[0]
         self.band_plants = set(band_plants)
@@ -239,14 +246,13 @@ class SeekQP:
             P[-1, -1] += 2 * w_t
         P += 2 * eps * np.eye(n)
         kt = np.arange(N, Hn)
-        E0, E1, e0, e1 = [], [], [], []
+        eblocks, e1 = [], []
         for m in maps:
             Tyu, Tyr, syr = m.position_rows(kt, N if self.free_ref else Hn)
-            a0, a1 = (cols(imax * Tyu / band, Tyr / band) if self.free_ref
-                      else cols(imax * (Tyu[:, :N] + Tyr @ Rfull) / band, None))
-            E0.append(a0); E1.append(a1)
+            eblocks.append((imax * Tyu / band, Tyr / band, None) if self.free_ref
+                           else (imax * (Tyu[:, :N] + Tyr @ Rfull) / band, None, None))
             e1.append((syr - 1.0) / band if self.free_ref else -np.ones(len(kt)) / band)
-        E0, E1, e1 = np.vstack(E0), np.vstack(E1), np.concatenate(e1)
+        (E0, E1), e1 = _assemble(eblocks, n, N), np.concatenate(e1)
         w = 2 * w_e / E0.shape[0]
         self._P0, self._P1, self._P2 = P + w * E0.T @ E0, w * (E0.T @ E1 + E1.T @ E0), w * E1.T @ E1
         self._q1, self._q2 = w * E0.T @ e1, w * E1.T @ e1   # g = K q1 + K|K| q2
