@@ -254,8 +254,19 @@ class SeekQP:
             e1.append((syr - 1.0) / band if self.free_ref else -np.ones(len(kt)) / band)
         (E0, E1), e1 = _assemble(eblocks, n, N), np.concatenate(e1)
         w = 2 * w_e / E0.shape[0]
-        self._P0, self._P1, self._P2 = P + w * E0.T @ E0, w * (E0.T @ E1 + E1.T @ E0), w * E1.T @ E1
-        self._q1, self._q2 = w * E0.T @ e1, w * E1.T @ e1   # g = K q1 + K|K| q2
+        # products on the nonzero blocks only (E0 lives on the feedforward columns, E1 on the reference
+        # columns): a quarter of the full-width products' work, the same numbers
+        v, q = slice(0, N), slice(N, N + nq)
+        E0v, E1q = E0[:, v], E1[:, q]
+        self._P0, self._P1, self._P2 = P.copy(), np.zeros((n, n)), np.zeros((n, n))
+        self._q1, self._q2 = np.zeros(n), np.zeros(n)       # g = K q1 + K|K| q2
+        self._P0[v, v] += (w * E0v.T) @ E0v
+        self._q1[v] = (w * E0v.T) @ e1
+        if nq:
+            self._P1[v, q] = w * (E0v.T @ E1q)
+            self._P1[q, v] = w * (E1q.T @ E0v)
+            self._P2[q, q] = (w * E1q.T) @ E1q
+            self._q2[q] = (w * E1q.T) @ e1
         self._dm_cache = None      # casadi copies of the full matrices, made on first full solve
         self._mat_K, self._mat = None, None      # (H, A) of the last |K| (matrices())
         self._abs_A = None                       # |A| of the last |K| (violation())
