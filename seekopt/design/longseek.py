@@ -18,8 +18,8 @@ It is designed by a QP on the condensed linear loop (:class:`seekopt.design.qp.L
 simulator) over the same plant set, current limit, unmodelled-mode guard and solver chain as
 :class:`seekopt.design.designer.SeekDesigner` (one :class:`seekopt.design.problem.SeekProblem`): minimum ``N`` such that ``|y_i(k) - r_A(k)| <= beta band`` for
 ``k >= N`` on every plant ``i`` of the set, the total current within ``gamma Imax - |bias|`` (so that the
-mirrored step, ``-u_A``, with the hold current is within ``gamma Imax`` too), the rigid velocity never above
-``d``, and the guard's residual within half its tolerance (the two steps of a seek add).
+mirrored step, ``-u_A``, with the hold current is within ``gamma Imax`` too), the rigid velocity within ``[0, d]``
+(the arrival's mirrored step runs at ``d - v_A``), and the guard's residual within half its tolerance (the two steps of a seek add).
 
 The seek
 --------
