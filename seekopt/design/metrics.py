@@ -29,8 +29,7 @@ from seekopt.design.profiles import Profile, t_bang_bang
 from seekopt.drive.simulator import Disturbances, SimResult, simulate_2dof
 
 __all__ = ["SeekMetrics", "settle_time", "settle_index", "evaluate_profile", "played_metrics", "simulate_profile",
-           "seek_metrics",
-           "worst_case", "DEFAULT_TAIL_S"]
+           "seek_metrics", "worst_case", "DEFAULT_TAIL_S"]
 
 #: Default simulated time after the end of the profile [s].
 DEFAULT_TAIL_S = 0.015

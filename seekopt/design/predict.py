@@ -15,8 +15,8 @@ import numpy as np
 
 from identification.model.plant import ModalPlant
 
-__all__ = ["set_label", "feedforward_scale", "calibrated", "played_plant", "played_on", "scale_feedforward_maps", "SetPrediction",
-           "predict_on_set", "superposes", "play_linear"]
+__all__ = ["set_label", "feedforward_scale", "calibrated", "played_plant", "played_on", "scale_feedforward_maps",
+           "SetPrediction", "predict_on_set", "superposes", "play_linear"]
 
 
 def set_label(plant: ModalPlant) -> str:

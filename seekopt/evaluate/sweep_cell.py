@@ -22,8 +22,8 @@ from seekopt.evaluate.engines import one_line, worker_held
 from seekopt.evaluate.sweep_config import (METRICS, TUNE_FACTORS, SweepError, cell_key, controller_at_tpi,
                                            controller_factor)
 
-__all__ = ["BaselineDesigner", "OCP_SPECS", "designer_problem", "designer_factory", "baseline_profile", "evaluate", "CellRunner", "compute_cell",
-           "run_cell_in_worker"]
+__all__ = ["BaselineDesigner", "OCP_SPECS", "designer_problem", "designer_factory", "baseline_profile", "evaluate",
+           "CellRunner", "compute_cell", "run_cell_in_worker"]
 
 
 # ------------------------------------------------------------------ designers

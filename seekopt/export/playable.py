@@ -9,12 +9,19 @@ Physical settings (converted to tracks per TPI with the TPI's track pitch)
     ``stroke_mm`` (``--stroke-mm``, else the plant's ``meta["stroke_mm"]`` / ``meta["stroke_track"]`` at the
     plant's own pitch) and ``vmax_mps`` (``--vmax-mps``, else the plant's metadata, see
     :mod:`seekopt.design.longseek`; none: see :mod:`seekopt.export.build`).
+Designers
+    The sweep's own (:func:`seekopt.evaluate.sweep_cell.designer_factory`): the ``ocp`` designers on the
+    problem its cells designed on (:func:`seekopt.evaluate.sweep_cell.designer_problem`: the default
+    :class:`~seekopt.design.family.Drift` or the sweep's ``drift``, the family members at the TPI), the long
+    seeks on that same problem.  ``sweep.json`` is read once (:func:`read_sweep`) and passed down.
 Current margin
     Tables play both directions, and the hold current ``-bias_a`` adds to one of them: the anchors of the
     ``ocp`` designers are designed with ``current_margin = 0.97 - 2 |bias_a| / Imax`` so that both directions
     stay within ``0.97 Imax`` (velocity steps bound ``|i| <= 0.97 Imax - |bias|`` themselves).  Other
     designers are used as the sweep built them; the peak current of every class in both directions is
-    measured and recorded (``meta["peak_current_a"]``), and a warning printed when it exceeds Imax.
+    measured on a linear plant (:func:`seekopt.export.verify.play_rule`: superposition, or the simulator when
+    the loop does not superpose) and recorded (``meta["peak_current_a"]``), and a warning printed when it
+    exceeds Imax.
 
 A single design (a Profile CSV from ``seekopt design``) is exported as one table in the format of
 :mod:`seekopt.export.tables` (:func:`table_set_from_profile`).
@@ -33,8 +40,8 @@ import numpy as np
 from seekopt.export.classes import RuleError, SeekRule, frac_bits_for
 from seekopt.export.tables import ExportError, read_sweep_json
 
-__all__ = ["read_sweep", "resolve_physical", "sweep_stroke_mm", "build_rule", "write_seek", "write_seek_json", "write_seek_csv",
-           "table_set_from_profile", "export_designer", "export_longseek", "SEEK_BASENAME"]
+__all__ = ["read_sweep", "resolve_physical", "sweep_stroke_mm", "build_rule", "write_seek", "write_seek_json",
+           "write_seek_csv", "table_set_from_profile", "export_designer", "export_longseek", "SEEK_BASENAME"]
 
 SEEK_BASENAME = "seekopt_seek"
 
