@@ -17,8 +17,8 @@ from identification.model.plant import ModalPlant
 
 from seekopt.design.qp import LoopMaps
 
-__all__ = ["set_label", "feedforward_scale", "set_identity", "calibrated", "played_on", "scale_feedforward_maps",
-           "set_loop_maps", "SetPrediction", "predict_on_set", "superposes", "play_linear"]
+__all__ = ["set_label", "feedforward_scale", "set_identity", "calibrated", "played_plant", "played_on",
+           "scale_feedforward_maps", "set_loop_maps", "SetPrediction", "predict_on_set", "superposes", "play_linear"]
 
 
 def set_label(plant: ModalPlant) -> str:
@@ -45,6 +45,14 @@ def calibrated(member: ModalPlant, design_k0: float, gain_estimate: float | None
     meta = dict(member.meta or {})
     meta["ff_scale"] = float(design_k0) / float(gain_estimate or member.k0)
     return member.copy(meta=meta)
+
+
+def played_plant(truth: ModalPlant, design_k0: float) -> ModalPlant:
+    """``truth`` as its drive plays a design made for the gain ``design_k0`` [track/(A s^2)]: a truth of
+    another gain (another member of the family, relative difference above 1e-6) is :func:`calibrated` to
+    it, otherwise ``truth`` itself (its own calibration, if any, kept).  Play profiles on it through
+    :func:`played_on`; the bench's table, its figure and the effect bench all do."""
+    return calibrated(truth, design_k0) if abs(truth.k0 / float(design_k0) - 1.0) > 1e-6 else truth
 
 
 def played_on(profile, plant: ModalPlant):
