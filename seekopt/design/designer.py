@@ -40,7 +40,7 @@ from threadpoolctl import threadpool_limits
 from identification.model.plant import ModalPlant
 
 from seekopt.design import guard as _guard, qp as _qp
-from seekopt.design.predict import play_linear, predict_on_set, scale_feedforward_maps, superposes
+from seekopt.design.predict import play_linear, predict_on_set, set_loop_maps, superposes
 from seekopt.design.metrics import DEFAULT_TAIL_S, played_metrics, worst_case
 from seekopt.design.problem import ProblemError, SeekProblem, check_closed_loop
 from seekopt.design.profiles import Profile, exact_rest, finish_profile, reference_from_model, t_bang_bang
@@ -120,10 +120,12 @@ class SeekDesigner:
 
     # ------------------------------------------------------------------ structures
     def _loop_maps(self, horizon: int) -> list:
+        """The set's closed-loop maps (:func:`~seekopt.design.predict.set_loop_maps`: a plant whose gain
+        differs plays the profile through its drive's gain calibration), at least ``horizon`` samples
+        long (kept; grown by doubling).  The effect-aware designer's robust set reads the same maps."""
         if self._maps is None or self._maps_h < horizon:
             h = max(horizon, 2 * self._maps_h)
-            # a plant of the set whose gain differs plays the profile through its drive's gain calibration
-            self._maps = [scale_feedforward_maps(_qp.LoopMaps(p, self.controller, h), p) for p in self.plants]
+            self._maps = set_loop_maps(self.plants, self.controller, h)
             self._maps_h = h
             self.map_builds += 1
         return self._maps
@@ -141,10 +143,8 @@ class SeekDesigner:
                 imp = np.zeros(H); imp[0] = 1.0
                 hm = reference_from_model(self._reference_model(), imp, self.fs, H)
                 R = _qp.toeplitz_rows(hm, np.arange(H), H)
-            dfg = _guard.grid_spacing(self.fs, nmax)
-            hf = _guard.guard_rows(self.guard_bands, self.plant.k0, self.fs, self.L, H * self.L, spacing_hz=dfg,
-                                   extra_hz=_guard.loop_peaks(maps[0], self.guard_bands, self.fs, dfg),
-                                   curve=self.guard_curve)
+            hf = _guard.design_guard_rows(self.guard_bands, self.plant.k0, self.fs, nmax, H, maps[0],
+                                          curve=self.guard_curve)
             band_plants = range(len(self.plants)) if self.objective_kind == "worst" else [0]
             s = self.settings
             self._qps[key] = _qp.SeekQP(
