@@ -465,6 +465,19 @@ class SolverChain:
                 self._on_build(name)
         return self._solvers[name]
 
+    def _padded(self, solver, data, x0) -> QPSolution:
+        """A solver built for ``self.m`` rows on data with fewer: free zero rows appended, multipliers
+        trimmed back."""
+        H, g, A, lba, uba, lbx, ubx = data
+        k = len(A)
+        Ap = np.zeros((self.m, A.shape[1]))
+        Ap[:k] = A
+        lp = np.full(self.m, -np.inf); lp[:k] = lba
+        up = np.full(self.m, np.inf); up[:k] = uba
+        sol = solver.solve(H, g, Ap, lp, up, lbx, ubx, x0=x0)
+        sol.lam_a = sol.lam_a[:k]
+        return sol
+
     def solve(self, *data, x0=None, check=None, start: int = 0, lam0=None, prove: bool = True) -> QPSolution:
         """Solve ``data = (H, g, A, lba, uba, lbx, ubx)``; ``x0`` warm-starts the first solver only, as
         ``lam0 = (lam_a0, lam_x0)`` (a starting active set) does a first solver that takes one;
@@ -475,6 +488,8 @@ class SolverChain:
             solver = self.get(name)
             if i == 0 and lam0 is not None and getattr(solver, "warm_duals", False):
                 sol = solver.solve(*data, x0=x0, lam_a0=lam0[0], lam_x0=lam0[1])
+            elif name != DAQP_PKG and isinstance(data[2], np.ndarray) and len(data[2]) < self.m:
+                sol = self._padded(solver, data, x0 if i == 0 else None)
             else:
                 sol = solver.solve(*data, x0=x0 if i == 0 else None)
             wall, cpu = wall + sol.solve_time_s, cpu + sol.cpu_time_s

@@ -68,8 +68,9 @@ class WorkingSetQP:
     near : float
         With the violated rows, rows within ``near`` of their bound join too (fewer rounds).
     pad : bool
-        Pad row counts to a few sizes (solvers built per size: casadi); False for a primary that takes
-        any size (:class:`seekopt.design.solvers.DaqpQP`), whose padding rows would only cost.
+        Pad the reduced data's rows to the chain's size (casadi solvers are built per size); False for a
+        primary that takes any size (:class:`seekopt.design.solvers.DaqpQP`), whose padding rows would
+        only cost (the chain pads for its casadi fallbacks itself).
     warm : bool
         Start each solve from the active set of the last answer of this structure (the previous round
         of this length, else the previous length's or seek's), mapped to the reduced rows and variables,
@@ -97,10 +98,9 @@ class WorkingSetQP:
     def _chain(self, n: int, m: int, step: int | None = None) -> SolverChain:
         """Solver chain for ``n`` variables and ``m`` rows, padded to a power of two (``step``: to a
         multiple of ``step`` rows instead: the whole-row solves, whose padding rows daqp would carry
-        through every iteration); exact when not ``self.pad``."""
-        if not self.pad:
-            bucket = m
-        elif step:
+        through every iteration).  Without ``self.pad`` the data keep their exact row count (the chain
+        pads it for its casadi solvers only)."""
+        if step:
             bucket = -(-m // step) * step
         else:
             bucket = 32
@@ -160,7 +160,7 @@ class WorkingSetQP:
                 break
             rows = np.flatnonzero(work)
             chain = self._chain(len(fv), len(rows), None if screen else 64)
-            mb = chain.m
+            mb = chain.m if self.pad else len(rows)
             Ar = np.zeros((mb, len(fv)))
             Ar[:len(rows)] = A[np.ix_(cand[rows], fv)]
             shift = 0.0 if A_fixed is None else A_fixed[cand[rows]]
