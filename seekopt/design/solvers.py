@@ -35,7 +35,7 @@ import numpy as np
 from seekopt.design.certificates import farkas_certificate, proves_infeasible  # noqa: F401
 
 __all__ = ["QPStatus", "classify_status", "QPSolution", "ConicQP", "DaqpQP", "IpoptQP", "make_qp_solver",
-           "SolverChain", "QP_PLUGINS", "DAQP_PKG", "QP_SOLVERS", "dm", "proves_infeasible", "farkas_certificate",
+           "SolverChain", "QP_PLUGINS", "DAQP_PKG", "QP_SOLVERS", "dm", "kkt_holds", "proves_infeasible", "farkas_certificate",
            "constraint_violation"]
 
 #: ``casadi.conic`` plugins the designer accepts.
@@ -328,7 +328,10 @@ class DaqpQP:
                 dual0 = None
         t0, c0 = time.perf_counter(), time.process_time()
         x, flag, lam = self._call(H, np.asarray(g, dtype=float).ravel(), A, bu, bl, sense, dual0)
-        if dual0 is not None and flag not in (1, 2, -1):
+        if dual0 is not None and (flag not in (1, 2, -1) or (flag in (1, 2) and not kkt_holds(
+                H, g, A, lba, uba, lbx, ubx, x, lam[n:], lam[:n]))):
+            # daqp has answered a bad starting set with flag 1 and NaN (or a point that is no optimum):
+            # a warm answer stands only when it satisfies the optimality conditions, else solved cold
             self.warm_retries += 1
             x, flag, lam = self._call(H, np.asarray(g, dtype=float).ravel(), A, bu, bl, sense, None)
         dt, dc = time.perf_counter() - t0, time.process_time() - c0
@@ -347,6 +350,31 @@ class DaqpQP:
             if not proven:          # daqp 0.11 returns no usable multipliers with most "infeasible"s
                 lam = np.zeros(n + m)
         return QPSolution(x, lam[n:].copy(), lam[:n].copy(), ok, raw, dt, dc, outcome, DAQP_PKG, proven=proven)
+
+
+def kkt_holds(H, g, A, lba, uba, lbx, ubx, x, lam_a, lam_x, tol: float = 1e-6) -> bool:
+    """True when ``x`` and the multipliers (casadi's sign convention: > 0 upper bound active, < 0 lower)
+    satisfy the optimality conditions of ``min 1/2 x'Hx + g'x, lba <= A x <= uba, lbx <= x <= ubx``
+    (a convex QP: then ``x`` is its optimum) -- stationarity ``H x + g + A' lam_a + lam_x = 0``, primal
+    feasibility and complementarity, each relative to the size of its terms (``tol``)."""
+    if x is None or lam_a is None or not (np.all(np.isfinite(x)) and np.all(np.isfinite(lam_a))
+                                          and np.all(np.isfinite(lam_x))):
+        return False
+    Hx, At = H @ x, A.T @ lam_a
+    r = Hx + g + At + lam_x
+    scale = 1.0 + np.abs(Hx) + np.abs(g) + np.abs(A).T @ np.abs(lam_a) + np.abs(lam_x)
+    if np.any(np.abs(r) > tol * scale):
+        return False
+    ax = A @ x
+    row = 1.0 + np.abs(A) @ np.abs(x)
+    if np.any(ax < lba - tol * row) or np.any(ax > uba + tol * row) or np.any(x < lbx - tol) or np.any(x > ubx + tol):
+        return False
+    big = tol * (1.0 + float(np.max(np.abs(np.r_[lam_a, lam_x]), initial=0.0)))
+    up, lo = lam_a > big, lam_a < -big
+    if np.any(np.abs(ax[up] - uba[up]) > tol * row[up]) or np.any(np.abs(ax[lo] - lba[lo]) > tol * row[lo]):
+        return False
+    up, lo = lam_x > big, lam_x < -big
+    return not (np.any(np.abs(x[up] - ubx[up]) > tol) or np.any(np.abs(x[lo] - lbx[lo]) > tol))
 
 
 class IpoptQP:
