@@ -241,7 +241,7 @@ def test_linear_plant_keeps_the_qp_path(tmp_path, capsys):
                  "-o", str(out)]) == 0
     assert nlpmod.BUILD_COUNT["nlp"] == before
     meta = Profile.from_csv(out).meta
-    assert meta["start_track"] == "0.0" and meta["direction"] == "outward" and meta["solver"] == "daqp"
+    assert meta["start_track"] == "0.0" and meta["direction"] == "outward" and meta["solver"] == "daqp_pkg"
 
 
 @pytest.mark.slow
