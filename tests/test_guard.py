@@ -9,8 +9,8 @@ from scipy import signal
 from identification.estimate.blind import blind_bands, blind_meta, detectable_gain
 from identification.model.plant import ModalPlant, Mode
 from seekopt.design.designer import SeekDesigner
-from seekopt.design.guard import (GuardBand, band_gains, controller_notches, curve_gain, guard_grid, guard_report, guard_rows,
-                                  merge_bands, plant_blind_bands, plant_gain_curve, problem_bands)
+from seekopt.design.guard import (GuardBand, band_gains, controller_notches, curve_gain, guard_grid, guard_report,
+                                  guard_rows, merge_bands, plant_blind_bands, plant_gain_curve, problem_bands)
 from seekopt.design.problem import SeekProblem
 from seekopt.design.qp import hf_guard_matrix, mode_residual_phasors, mode_residual_rows
 from seekopt.drive.controller import Controller
