@@ -576,3 +576,40 @@ def test_issue12_false_aborts_design(bundled_plant, K, robust):
     assert res.metrics.settled and res.unresolved_solves == 0
     assert res.metrics.peak_current_a <= IMAX * (1 + 1e-9)
     assert res.metrics.settle_time_s * Controller.nss().sample_rate_hz <= res.settle_samples + 1
+
+
+def test_finish_plays_a_loop_that_does_not_superpose_once(monkeypatch):
+    """A plant whose loop does not superpose (a pivot spring's rest offset, seekopt.design.predict.superposes)
+    is played once per verified design: the metrics and the unmodelled-mode guard read the same play, and
+    both equal what the simulator and guard_report give on their own."""
+    from identification.model.effects import PivotSpringDamper
+    import seekopt.design.metrics as metmod
+    import seekopt.drive.simulator as simmod
+    from seekopt.design import guard as guardmod
+    from seekopt.design.predict import superposes
+    ctrl = Controller.nss()
+    p = default_truth_plant().copy(effects=[PivotSpringDamper(30.0, 0.1, 3.0)])
+    assert p.is_linear and not superposes(p)
+    des = SeekDesigner(p, ctrl, IMAX)
+    assert des.guard_bands
+    sims, per_finish, real_sim, real_finish = [0], [], simmod.simulate_2dof, SeekDesigner._finish
+
+    def counting(*a, **k):
+        sims[0] += 1
+        return real_sim(*a, **k)
+
+    def finish(self, *a, **k):
+        before = sims[0]
+        try:
+            return real_finish(self, *a, **k)
+        finally:
+            per_finish.append(sims[0] - before)
+    monkeypatch.setattr(simmod, "simulate_2dof", counting)
+    monkeypatch.setattr(metmod, "simulate_2dof", counting)
+    monkeypatch.setattr(SeekDesigner, "_finish", finish)
+    res = des.design(200.0)
+    assert per_finish and all(n == 1 for n in per_finish), per_finish
+    monkeypatch.undo()
+    assert res.metrics == evaluate_profile(p, ctrl, res.profile, settle=0.1)
+    g = guardmod.guard_report(p, ctrl, res.profile, des.guard_bands, 0.1, curve=des.guard_curve)
+    assert (res.guard.worst_band, res.guard.worst_hz) == (g.worst_band, g.worst_hz)

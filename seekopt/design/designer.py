@@ -40,8 +40,8 @@ from threadpoolctl import threadpool_limits
 from identification.model.plant import ModalPlant
 
 from seekopt.design import guard as _guard, qp as _qp
-from seekopt.design.predict import play_linear, predict_on_set, scale_feedforward_maps, superposes
-from seekopt.design.metrics import DEFAULT_TAIL_S, evaluate_profile, worst_case
+from seekopt.design.predict import play_linear, predict_on_set, set_loop_maps, superposes
+from seekopt.design.metrics import DEFAULT_TAIL_S, played_metrics, worst_case
 from seekopt.design.problem import ProblemError, SeekProblem, check_closed_loop
 from seekopt.design.profiles import Profile, exact_rest, finish_profile, reference_from_model, t_bang_bang
 from seekopt.design.result import DesignError, DesignInfeasible, DesignResult, SolveStats
@@ -120,10 +120,12 @@ class SeekDesigner:
 
     # ------------------------------------------------------------------ structures
     def _loop_maps(self, horizon: int) -> list:
+        """The set's closed-loop maps (:func:`~seekopt.design.predict.set_loop_maps`: a plant whose gain
+        differs plays the profile through its drive's gain calibration), at least ``horizon`` samples
+        long (kept; grown by doubling).  The effect-aware designer's robust set reads the same maps."""
         if self._maps is None or self._maps_h < horizon:
             h = max(horizon, 2 * self._maps_h)
-            # a plant of the set whose gain differs plays the profile through its drive's gain calibration
-            self._maps = [scale_feedforward_maps(_qp.LoopMaps(p, self.controller, h), p) for p in self.plants]
+            self._maps = set_loop_maps(self.plants, self.controller, h)
             self._maps_h = h
             self.map_builds += 1
         return self._maps
@@ -141,10 +143,8 @@ class SeekDesigner:
                 imp = np.zeros(H); imp[0] = 1.0
                 hm = reference_from_model(self._reference_model(), imp, self.fs, H)
                 R = _qp.toeplitz_rows(hm, np.arange(H), H)
-            dfg = _guard.grid_spacing(self.fs, nmax)
-            hf = _guard.guard_rows(self.guard_bands, self.plant.k0, self.fs, self.L, H * self.L, spacing_hz=dfg,
-                                   extra_hz=_guard.loop_peaks(maps[0], self.guard_bands, self.fs, dfg),
-                                   curve=self.guard_curve)
+            hf = _guard.design_guard_rows(self.guard_bands, self.plant.k0, self.fs, nmax, H, maps[0],
+                                          curve=self.guard_curve)
             band_plants = range(len(self.plants)) if self.objective_kind == "worst" else [0]
             s = self.settings
             self._qps[key] = _qp.SeekQP(
@@ -384,7 +384,10 @@ class SeekDesigner:
             prof = finish_profile(u, K, self.fs, self.imax, self._reference_model(), "optimal", self.settle,
                                   meta=meta)
             prof.seek_samples = N
-        metrics = evaluate_profile(self.plant, self.controller, prof, settle=self.settle)   # the one simulator
+        # the one simulator, played once: a guard on a loop the maps cannot play (it does not superpose)
+        # reads this play's sub-step currents
+        sub = bool(self.guard_bands) and (self._maps is None or not superposes(self.plant))
+        metrics, sim = played_metrics(self.plant, self.controller, prof, settle=self.settle, record_substeps=sub)
         if not metrics.peak_current_a <= self.imax * (1 + 1e-9):
             raise DesignError(f"design exceeds Imax in simulation ({metrics.peak_current_a:.4g} A)")
         if strict and not metrics.settle_time_s * self.fs <= N + 1 + 1e-9:
@@ -403,7 +406,8 @@ class SeekDesigner:
         if self.guard_bands:
             played = play_linear(maps[0], prof, n_play) if maps is not None and superposes(self.plant) else None
             guard = _guard.guard_report(self.plant, self.controller, prof, self.guard_bands, self.settle,
-                                        curve=self.guard_curve, current_sub=None if played is None else played[1])
+                                        curve=self.guard_curve,
+                                        current_sub=sim.current_sub_a if played is None else played[1])
             prof.meta.update(guard.to_meta())
         prof.meta["design_status"] = "verified"
         return DesignResult(prof, metrics, "verified", stats.t, sol.solver or self.solver_name, objective,

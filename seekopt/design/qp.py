@@ -28,7 +28,7 @@ from seekopt.design.modal_residual import (dtft, hf_guard_matrix, mode_residual_
 from seekopt.design.solvers import (QP_PLUGINS, ConicQP, IpoptQP, QPSolution, constraint_violation, dm,  # noqa: F401
                                      make_qp_solver)
 
-__all__ = ["LoopMaps", "toeplitz_rows", "hf_guard_matrix", "mode_residual_phasors", "mode_residual_rows", "mode_residuals", "dtft", "pes_row_samples", "SeekQP"]
+__all__ = ["LoopMaps", "toeplitz_rows", "hf_guard_matrix", "mode_residual_phasors", "mode_residual_rows", "mode_residuals", "dtft", "pes_row_samples", "set_row_samples", "SeekQP"]
 
 
 def toeplitz_rows(h: np.ndarray, rows: np.ndarray, ncols: int) -> np.ndarray:
@@ -112,6 +112,18 @@ def pes_row_samples(nmax: int, horizon: int) -> np.ndarray:
     return np.concatenate(parts).astype(int)
 
 
+def set_row_samples(nmax: int, horizon: int, stride: int = 1) -> np.ndarray:
+    """Samples carrying the settle-band rows of the robust set's other plants (not the nominal):
+    :func:`pes_row_samples`, and with ``stride > 1`` (large size classes) the samples before
+    ``nmax + 32`` thinned to two adjacent samples of every ``2 stride`` (pairs, as there).  The one rule of
+    the seek QP (:class:`SeekQP`) and the effect-aware NLP's robust rows
+    (:class:`seekopt.design.nlp_problem.RobustSpread`)."""
+    ks = pes_row_samples(nmax, horizon)
+    stride = max(int(stride), 1)
+    near = ks[ks < nmax + 32]
+    return np.unique(np.r_[near[(near % (2 * stride)) < 2] if stride > 1 else near, ks[ks >= nmax + 32]]).astype(int)
+
+
 class SeekQP:
     """The condensed seek-design QP for seeks of at most ``nmax`` samples (one size class).
 
@@ -165,9 +177,7 @@ class SeekQP:
 
         if not self.free_ref:
             Rfull = np.asarray(R, float)[:Hn, :N]
-        stride = max(int(stride), 1)
-        near = ks[ks < N + 32]      # thinned for the other plants: pairs of adjacent samples (see pes_row_samples)
-        ks_other = np.unique(np.r_[near[(near % (2 * stride)) < 2] if stride > 1 else near, ks[ks >= N + 32]])
+        ks_other = set_row_samples(N, Hn, stride)     # thinned for the other plants (pairs of adjacent samples)
         for i, m in enumerate(maps):
             ksi = ks if i == 0 else ks_other
             Tyu, Tyr, syr = m.position_rows(ksi, N if self.free_ref else Hn)
