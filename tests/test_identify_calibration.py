@@ -47,10 +47,11 @@ def _acf(r, lags=(1, 2, 3)):
 def test_final_noise_model_whitens_the_prediction_error():
     """On a closed-loop log of the 36 kHz drive (independent simulator, sensor and force noise),
     the AR noise model fitted to the residual of the unwhitened LS fit leaves the whitened residual
-    correlated at lags 1-3 (measured -0.07: in closed loop the LS coefficients are biased and the AR
-    model whitens their misfit too); fitted to the output error of the whitened estimate (what the
-    final stage does, ``noise_model_passes``) the correlation halves (measured -0.035).  The colour
-    left is the sandwich covariance's business."""
+    correlated at lags 1-3 (measured -0.041 .. -0.051 with the noise model's poles at z = 1, -0.05 ..
+    -0.06 without: in closed loop the LS coefficients are biased and the AR model whitens their
+    misfit too); fitted to the output error of the whitened estimate (what the final stage does,
+    ``noise_model_passes``) the correlation nearly vanishes (measured at most 0.0024 in magnitude;
+    0.009 without the unit poles).  The colour left is the sandwich covariance's business."""
     from std_calibration import drive_36k
     from tests.drives import Noise, Schedule, make_log, modal_plant
     from identification.estimate.identify import _split
@@ -67,8 +68,8 @@ def test_final_noise_model_whitens_the_prediction_error():
     vp_ls, _ = run.problem(data, x)
     vp_pe, _ = run.problem(data, x, noise_from=vp_ls)
     a_ls, a_pe = _acf(vp_ls.solve(x)[2]), _acf(vp_pe.solve(x)[2])
-    assert np.abs(a_ls).min() > 0.05, a_ls
-    assert np.abs(a_pe).max() < 0.6 * np.abs(a_ls).min(), (a_ls, a_pe)
+    assert np.abs(a_ls).min() > 0.03, a_ls
+    assert np.abs(a_pe).max() < 0.25 * np.abs(a_ls).min(), (a_ls, a_pe)
     # the output error of a noise-free fit at the truth is each segment's initial-condition line
     clean = make_log(d, Schedule(n_seeks=10, seed=2), noise_seed=None)
     run = _Run(s, clean, _split(clean, 0)[1], {})

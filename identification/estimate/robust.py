@@ -26,8 +26,8 @@ b. Joint output-error fit of the measured position to the measured current over 
    fitted seeks.
    The final stage fits the AR model to the output error of the whitened estimate itself and
    refines again (``noise_model_passes``): an AR model of the unwhitened LS residual whitens that
-   fit's closed-loop misfit as well as the noise (whitened residual correlated -0.07 at lags 1-3 on
-   a 36 kHz test drive; -0.035 with the re-fit, ``tests/test_identify_calibration.py``).
+   fit's closed-loop misfit as well as the noise (whitened residual correlated -0.04 .. -0.05 at lags 1-3 on
+   a 36 kHz test drive; at most 0.0024 in magnitude with the re-fit, ``tests/test_identify_calibration.py``).
    The noise model has ``noise_unit_poles`` (2) poles at z = 1 imposed: the dominant low-frequency
    noise is the unlogged force noise through the rigid body's double integrator, a random walk of
    velocity within every seek, and an AR model fitted to short per-seek detrended segments puts
