@@ -178,7 +178,7 @@ class RobustSettings(IdentifySettings):
     scan_step_rel: float = 0.02
     scan_zetas: tuple = (0.01, 0.05)
     scan_fine_zetas: tuple = (0.003, 0.01, 0.03, 0.1)
-    scan_gate: float = 2.0
+    scan_gate: float = 1.0
     scan_max_new: int = 3
     scan_peak_sep_rel: float = 0.05
     scan_fine_span_rel: float = 0.02
