@@ -138,7 +138,10 @@ class RobustSettings(IdentifySettings):
         ``duplicate_sep_rel`` (two modes closer than this: the weaker is dropped), ``scan_step_rel``
         (step of the log-spaced scan grid), ``scan_zetas`` / ``scan_fine_zetas`` (damping ratios
         of the coarse / fine scan [-]), ``scan_gate`` (least RSS reduction of one more mode, in
-        residual variances, as a multiple of ``t_min^2`` [-]), ``scan_max_new`` (peaks tried per
+        residual variances, as a multiple of ``t_min^2`` [-]; 1: every mode the pruning would keep
+        is proposed -- a left-out mode that passes ``t_min`` biases the others by more than their
+        std, e.g. the 36 kHz calibration drive's 15.2 kHz mode, statistic 32, moved the other gains
+        by 2-4 std), ``scan_max_new`` (peaks tried per
         round), ``scan_peak_sep_rel`` (least separation of the peaks tried in one round),
         ``scan_fine_span_rel`` / ``scan_fine_points`` (the fine grid around a peak: +-span in ln f, points),
         ``scan_proposal_sep_rel`` (least separation of refined proposals), ``tabu_sep_rel`` (no
