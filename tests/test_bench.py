@@ -111,3 +111,56 @@ def test_cli_bench_prints_table(plants, tmp_path, capsys):
                  "--tracks", "5", "--imax", "0.3", "--figures", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     assert "optimal robust" in out and "sine" in out and "bench_k5.png" in out
+
+
+# ----------------------------------------------------------------------------- one calibration path
+def _other_gain(design):
+    """A truth of another gain (another member of the family): k0 10 % above the design plant's."""
+    return default_truth_plant().copy(k0=design.k0 * 1.1)
+
+
+def test_bench_figure_plays_what_the_table_played(plants, tmp_path, monkeypatch):
+    """The figure's seeks are the table's: on a truth of another gain both go through the drive's gain
+    calibration (seekopt.design.predict.played_plant), so every trace, cut to the table's horizon, gives the
+    row's metrics exactly (the simulator is causal)."""
+    import seekopt.evaluate.bench as bench
+    from seekopt.design.metrics import DEFAULT_TAIL_S, seek_metrics
+    _, design, _ = plants
+    truth, ctrl = _other_gain(design), Controller.nss()
+    res = run_bench(design, ctrl, 10.0, 0.3, truth=truth, robust=None, tuned=False)
+    played, real = [], bench.simulate_profile
+
+    def recording(plant, controller, profile, **kw):
+        sim = real(plant, controller, profile, **kw)
+        played.append((profile, sim))
+        return sim
+    monkeypatch.setattr(bench, "simulate_profile", recording)
+    bench.plot_bench(res, truth, ctrl, tmp_path, tail_s=DEFAULT_TAIL_S)
+    rows = [r for r in res.rows if r.profile is not None]
+    assert len(played) == len(rows) == 3
+    for r, (prof, sim) in zip(rows, played):
+        n = r.profile.n + int(round(DEFAULT_TAIL_S * FS))          # the table's horizon (evaluate_profile)
+        m = seek_metrics(sim.true_position_track[:n] - r.profile.tracks, 0.0, prof, FS, 0.1, design.k0)
+        assert (m.settle_time_s, m.peak_pes_after_track, m.rms_pes_after_track) == \
+            (r.settle_time_s, r.peak_pes_after_track, r.rms_pes_after_track), r.label
+        assert np.array_equal(prof.current_a, r.profile.current_a * (design.k0 / truth.k0))   # x 1/1.1
+
+
+def test_effect_bench_plays_what_the_bench_table_played(plants):
+    """The effect bench on a truth of another gain plays the same seeks as the bench table: the paper's
+    profiles and the linear design, through the same calibration (there from the start track on the full
+    plant, here from rest at 0 on the same linear plant: equal to the hold current's 1e-14 A solve)."""
+    from seekopt.design.nlp import EffectAwareDesigner, NLPSettings
+    from seekopt.evaluate.effect_bench import run_effect_bench
+    _, design, _ = plants
+    truth, ctrl = _other_gain(design), Controller.nss()
+    des = EffectAwareDesigner(design, ctrl, 0.3, 0.1, None, NLPSettings(tail_s=0.002))
+    eb = run_effect_bench(design, ctrl, 10.0, 0.3, truth=truth, designer=des)
+    table = run_bench(design, ctrl, 10.0, 0.3, truth=truth, robust=None, tuned=False,
+                      designers={"optimal (linear)": des.linear})
+    for label in ("sine", "windowed_sine", "optimal (linear)"):
+        e, t = eb.row(label), table.row(label)
+        assert np.array_equal(e.profile.current_a, t.profile.current_a)
+        assert e.settle_time_s == t.settle_time_s, label
+        assert e.peak_current_a == pytest.approx(t.peak_current_a, abs=1e-9)
+        assert e.peak_pes_after_track == pytest.approx(t.peak_pes_after_track, abs=1e-9)

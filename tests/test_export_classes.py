@@ -7,11 +7,13 @@ import json
 import shutil
 import subprocess
 from fractions import Fraction
+from pathlib import Path
 
 import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
+from identification.model.plant import Mode
 from seekopt.app.cli import main
 from seekopt.design.longseek import LongSeekDesigner, LongSeekSpec
 from seekopt.design.designer import SeekDesigner
@@ -21,7 +23,7 @@ from seekopt.evaluate.sweep import SweepConfig, run_sweep
 from seekopt.export.build import AnchorDesigner, ClassSettings, build_seek_set
 from seekopt.export.classes import SeekRule, SeekSet, div_round, frac_bits_for
 from seekopt.export.ctable import write_seek_c
-from seekopt.export.verify import play_linear, play_simulated
+from seekopt.export.verify import DEFAULT_TAIL_SAMPLES, play_linear, play_rule, play_simulated
 
 CC = shutil.which("gcc") or shutil.which("cc")
 IMAX, STROKE, VMAX = 0.3, 5000, 4e5
@@ -131,6 +133,34 @@ def test_linear_play_agrees_with_the_simulator(built, played, drive):
     assert np.allclose(sim["peak_current_a"], played["peak_current_a"][np.array(Ks) - 1], rtol=0, atol=1e-9)
 
 
+def test_pivot_rest_offset_is_played_by_the_simulator(built, drive):
+    """A pivot spring with a rest offset does not superpose (seekopt.design.predict.superposes): play_linear
+    refuses it and play_rule plays it in the one simulator, each direction on its own; its figures are those
+    of a full simulate_2dof play (the superposition path said 11 samples for 1 track; the drive takes 224)."""
+    from identification.model.effects import PivotSpringDamper
+    from seekopt.design.metrics import settle_index
+    from seekopt.drive.simulator import simulate_2dof
+    s, _, _ = built
+    p, c = drive
+    pp = p.copy(effects=[PivotSpringDamper(30.0, 0.1, 300.0)])
+    Ks = [1, 13, s.classes[-1].k_hi + 1, 3333]
+    with pytest.raises(ValueError, match="superpose"):
+        play_linear(s, pp, c, Ks, IMAX)
+    res = play_rule(s, pp, c, Ks, IMAX)
+    for i, K in enumerate(Ks):
+        n = s.n_samples(K) + DEFAULT_TAIL_SAMPLES
+        for sgn, key in ((1, "peak_current_a"), (-1, "peak_current_neg_a")):
+            u, r = s.play(sgn * K, n)
+            sim = simulate_2dof(pp, c, u * (IMAX / 32768.0) - pp.bias_a, r / 2.0 ** s.frac_bits, position0=0.0)
+            assert res[key][i] == sim.peak_current_a, (K, sgn)
+            if sgn == 1:
+                k = settle_index(sim.true_position_track - K, 0.1)
+                assert res["settle_samples"][i] == (-1 if k is None else k), K
+    assert res["settle_samples"][0] > 100        # the rest offset's pull, which superposition cannot see
+    lin = play_linear(s, p, c, Ks, IMAX)                   # a loop that superposes keeps the linear path
+    assert np.array_equal(play_rule(s, p, c, Ks, IMAX)["settle_samples"], lin["settle_samples"])
+
+
 def test_budget_widens_the_classes(built):
     s, ad, ls = built
     tight = build_seek_set(ad, ls, STROKE, s.frac_bits, IMAX, tpi=100000,
@@ -217,11 +247,18 @@ def sweep(tmp_path_factory):
     return out
 
 
-def test_cli_export_playable_tables(sweep, tmp_path, capsys):
+def test_cli_export_playable_tables(sweep, tmp_path, capsys, monkeypatch):
     out = tmp_path / "fw"
+    reads, read_text = [], Path.read_text
+
+    def counting(self, *a, **k):
+        reads.append(self.name)
+        return read_text(self, *a, **k)
+    monkeypatch.setattr(Path, "read_text", counting)
     # 1 mm stroke = 3937 tracks at 100k TPI; 0.0508 m/s = 2e5 track/s
     assert main(["export", str(sweep), "--stroke-mm", "1", "--vmax-mps", "0.0508", "--format", "json",
                  "-o", str(out)]) == 0
+    assert reads.count("sweep.json") == 1                    # read once, passed down
     text = capsys.readouterr().out
     assert "lengths 1..3937" in text and "of 65536" in text
     rule = SeekRule.from_dict(json.loads((out / "seekopt_seek.json").read_text()))
@@ -230,6 +267,36 @@ def test_cli_export_playable_tables(sweep, tmp_path, capsys):
     assert s.stroke == 3937 and s.coasts and rule.meta["designer"] == "ocp"
     assert (out / "seekopt_tables.json").exists()          # the swept designs as before
     assert s.meta["peak_current_a"] <= IMAX
+
+
+@pytest.mark.parametrize("designer,drift", [("ocp-robust", None), ("ocp-robust", "temp=3%,seek=4%"), ("ocp", None)])
+def test_export_designs_on_the_sweeps_own_problem(tmp_path, monkeypatch, designer, drift):
+    """build_rule designs its anchors and long seeks on the problem the sweep's cells designed on
+    (seekopt.evaluate.sweep_cell.designer_problem: the Drift default or the sweep's drift, the family members
+    at the TPI), the anchors with the export's current margin (a RobustSpec() set used to stand in)."""
+    from seekopt.evaluate.sweep_cell import CellRunner
+    from seekopt.export import build as buildmod, playable
+    p, c = default_truth_plant(), Controller.nss()
+    member = p.copy(k0=p.k0 * 1.04, modes=[Mode(m.freq_hz * 0.98, m.zeta, m.gain) for m in p.modes])
+    cfg = SweepConfig(p, c, [100e3], [10], IMAX, designer=designer, family=[member], drift=drift)
+    (tmp_path / "sweep.json").write_text(json.dumps(cfg.to_dict()))
+    seen = {}
+
+    class Captured(Exception):
+        pass
+
+    def capture(ad, ls, *a, **k):
+        seen.update(anchor=ad.designer, longseek=ls)
+        raise Captured
+    monkeypatch.setattr(buildmod, "build_seek_set", capture)
+    with pytest.raises(Captured):
+        playable.build_rule(tmp_path, stroke_mm=1.0, vmax_mps=0.0508, progress=False)
+    sweep_designer = CellRunner().designer(cfg.to_dict(), 100e3)
+    hashes = lambda d: [q.hash() for q in d.problem.plants()]      # noqa: E731
+    assert hashes(seen["anchor"]) == hashes(seen["longseek"]) == hashes(sweep_designer)
+    assert len(hashes(sweep_designer)) > (2 if designer == "ocp-robust" else 1)    # nominal and member at least
+    assert seen["anchor"].problem.current_margin == pytest.approx(0.97 - 2 * abs(p.bias_a) / IMAX)
+    assert seen["longseek"].problem.current_margin == sweep_designer.problem.current_margin == 0.97
 
 
 def test_cli_export_errors_and_no_stroke(sweep, tmp_path, capsys):

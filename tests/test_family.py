@@ -235,3 +235,24 @@ def test_temperature_family_design_beats_the_paper_on_every_member():
                    for k in ("sine", "windowed_sine"))
         assert t <= 0.7 * base
         assert t <= res.prediction.worst_metrics.settle_time_s * 1.2
+
+
+def test_plants_differing_only_in_calibration_stay_in_the_set():
+    """The corners of a feedforward-gain error are the same plant played with different calibrations:
+    distinct drives of the set (before, the plant hash, which leaves out meta, collapsed them into one)."""
+    from seekopt.design.family import Drift
+    p = plant()
+    s = drift_set(p, [], Drift.from_string("ffgain=±2%"))
+    scales = sorted(round(feedforward_scale(q), 9) for q in s)
+    assert {0.98, 1.0, 1.02} <= set(scales)
+    assert {"ffgain+2%", "ffgain-2%"} <= {set_label(q) for q in s}
+    # temperature x feedforward gain error: all four corners
+    s = drift_set(p, [], Drift.from_string("temp=±4%,ffgain=±1%"))
+    assert len([q for q in s if set_label(q).startswith("temp")]) == 4
+    from seekopt.design.predict import set_identity
+    assert len({set_identity(q) for q in s}) == len(s)
+    # identity: the plant and its calibration; the label is not part of it
+    a = p.copy(meta={"set_label": "a", "ff_scale": 1.01})
+    assert set_identity(a) == set_identity(p.copy(meta={"set_label": "b", "ff_scale": 1.01}))
+    assert set_identity(a) != set_identity(p.copy(meta={"set_label": "a", "ff_scale": 0.99}))
+    assert set_identity(p) == set_identity(p.copy(meta={"ff_scale": 1.0}))

@@ -241,7 +241,7 @@ def test_linear_plant_keeps_the_qp_path(tmp_path, capsys):
                  "-o", str(out)]) == 0
     assert nlpmod.BUILD_COUNT["nlp"] == before
     meta = Profile.from_csv(out).meta
-    assert meta["start_track"] == "0.0" and meta["direction"] == "outward" and meta["solver"] == "daqp"
+    assert meta["start_track"] == "0.0" and meta["direction"] == "outward" and meta["solver"] == "daqp_pkg"
 
 
 @pytest.mark.slow
@@ -282,3 +282,76 @@ def test_cli_bench_with_effects_plays_all_four_on_the_full_plant(tmp_path, capsy
     for label in ("sine", "windowed_sine", "optimal (linear)", "optimal (effects)"):
         assert label in out
     assert "Ipopt" in out
+
+
+# ------------------------------------------------------------------ the robust set the NLP is given
+class _Captured(Exception):
+    pass
+
+
+def _nlp_inputs(des, n, monkeypatch):
+    """``(spread, guard)`` that ``EffectAwareDesigner._nlp(n)`` hands to the NLP (its build stopped there)."""
+    got = {}
+
+    def capture(*args, **kw):
+        got.update(kw)
+        raise _Captured()
+    monkeypatch.setattr(nlpmod, "SeekNLP", capture)
+    with pytest.raises(_Captured):
+        des._nlp(n)
+    return got["spread"], got["guard"]
+
+
+def test_nlp_robust_set_is_the_linear_designers_calibrated_set(ctrl, monkeypatch):
+    """A gain corner of the robust set is constrained in the NLP as the drive plays it (feedforward x its
+    ``ff_scale``, as SeekDesigner and the predictions), on the QP's band-row samples of the set's plants
+    (pairs of samples, qp.set_row_samples)."""
+    from seekopt.design.designer import SeekDesigner
+    from seekopt.design.family import Drift, feedforward_scale
+    from seekopt.design.nlp_problem import RobustSpread
+    from seekopt.design.problem import SeekProblem
+    from seekopt.design.qp import LoopMaps
+    p = kt_plant()
+    drift = Drift.from_string("gain=±5%")
+    des = EffectAwareDesigner(p, ctrl, IMAX, 0.1, drift)
+    c = 48
+    spread, _ = _nlp_inputs(des, 40, monkeypatch)
+    scales = [feedforward_scale(q) for q in des.linear.plants]
+    assert any(abs(s - 1) > 0.04 for s in scales)          # the gain corners carry a calibration
+    # the same spread from the maps of an independent linear designer of the same problem
+    lin = SeekDesigner(SeekProblem(p.linear_part(), ctrl, IMAX, 0.1, band_margin=des.settings.band_margin,
+                                   current_margin=des.settings.current_margin, robust=drift))
+    H = c + des.tail
+    ref = RobustSpread(lin._loop_maps(H + 1 + des.tail), c, H, 0.1, nmax_prev=32)
+    assert len(spread.DY) == len(ref.DY) == len(des.linear.plants) - 1
+    for a, b in zip(spread.DY, ref.DY):
+        assert np.allclose(a, b, rtol=1e-12, atol=1e-12)
+    for a, b in zip(spread.DI, ref.DI):
+        assert np.allclose(a, b, rtol=1e-12, atol=1e-12)
+    # ... and not the uncalibrated maps (what the NLP used before): the gain corners differ
+    raw = RobustSpread([LoopMaps(q, ctrl, H + 1) for q in des.linear.plants], c, H, 0.1, nmax_prev=32)
+    j = int(np.argmax([abs(s - 1) for s in scales[1:]]))
+    assert not np.allclose(raw.DY[j][:, :c], spread.DY[j][:, :c], rtol=1e-3, atol=0)
+    # band rows: the QP's rows of the set's other plants, on the NLP's samples after the smaller class
+    qp = des.linear._structure(c, False)
+    ks = qp.sample[np.isin(qp.kind, ("pes",)) & (qp.plant_idx == 1)]
+    assert np.array_equal(spread.band_samples, ks[(ks > 32) & (ks <= H)])
+
+
+def test_set_row_samples_are_one_rule_for_qp_and_nlp(ctrl):
+    """The NLP's robust rows are the QP's rows of the set's other plants, unthinned and thinned
+    (stride 2): pairs of adjacent samples in the tail (a mode near Nyquist alternates the PES sign
+    sample by sample; rows on every 2nd sample see only one phase)."""
+    from seekopt.design import qp as qpmod
+    from seekopt.design.nlp_problem import RobustSpread
+    truth = default_truth_plant()
+    maps = [qpmod.LoopMaps(q, ctrl, 182) for q in (truth, truth.copy(k0=1.05 * truth.k0))]
+    N, H = 40, 180
+    for stride in (1, 2):
+        qp = qpmod.SeekQP(maps, N, H + 1, IMAX, 0.1, ctrl.sample_rate_hz, [0, 1], lambda n, m: None, stride=stride)
+        ks = qp.sample[(qp.kind == "pes") & (qp.plant_idx == 1)]
+        rs = RobustSpread(maps, N, H, 0.1, nmax_prev=8, **({"stride": stride} if stride > 1 else {}))
+        assert np.array_equal(rs.band_samples, ks[ks > 8])
+        first = ks[(ks >= N + 96) & ((ks - N - 96) % 4 == 0) & (ks < H)]    # first of each pair (H: the last)
+        assert first.size and np.all(np.isin(first + 1, ks))
+    assert np.array_equal(ks, qpmod.set_row_samples(N, H + 1, 2))

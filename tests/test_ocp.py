@@ -164,6 +164,7 @@ def test_failed_solve_is_never_returned(setup, monkeypatch):
                                   "solver crashed", 0.0, 0.0)
 
     monkeypatch.setattr(solvmod.ConicQP, "solve", failing)
+    monkeypatch.setattr(solvmod.DaqpQP, "solve", failing)
     with pytest.raises(DesignError, match="solver crashed"):
         d.design(10.0)
     with pytest.raises(DesignError, match="solver crashed"):
@@ -173,6 +174,7 @@ def test_failed_solve_is_never_returned(setup, monkeypatch):
         return solvmod.QPSolution(np.zeros(self.n), np.zeros(self.m), np.zeros(self.n), True, "1", 0.0, 0.0)
 
     monkeypatch.setattr(solvmod.ConicQP, "solve", lying)
+    monkeypatch.setattr(solvmod.DaqpQP, "solve", lying)
     with pytest.raises(DesignError, match="violation"):
         d.design(10.0)
     with pytest.raises(DesignError, match="violation"):
@@ -242,8 +244,9 @@ def test_designer_built_once_designs_20_lengths_without_rebuilding(setup):
     # reduced problems (working set): one small solver per (free variables, row bucket), built once and
     # kept -- never one per solve
     chains = sum(len(w._chains) for w in d._ws.values()) + sum(q._solver is not None for q in d._qps.values())
-    assert d.solver_builds["daqp"] == chains
-    assert d.solver_builds["daqp"] - solvers["daqp"] <= 8
+    primary = d.settings.qp_solver
+    assert d.solver_builds[primary] == chains
+    assert d.solver_builds[primary] - solvers[primary] <= 8
 
 
 # ------------------------------------------------------------------------- solver statuses
@@ -304,20 +307,23 @@ def test_solver_chain_retries_only_without_proof(primary, fallback, outcome, n_a
 
 
 def test_cycling_primary_falls_back_and_designs_the_same(setup, monkeypatch):
-    """daqp forced to report cycling (-2) on every solve: the fallback (qpoases) designs, the bisection
-    finds the same length as daqp alone, and no length is called infeasible on a cycling status."""
+    """daqp (the package and casadi's) forced to report cycling (-2) on every solve: the fallback
+    (qpoases) designs, the bisection finds the same length as daqp alone, and no length is called
+    infeasible on a cycling status."""
     truth, ctrl, design = setup
     ref = SeekDesigner(SeekProblem(design, ctrl, IMAX)).design(50.0)
-    real = solvmod.ConicQP.solve
+    real, real_pkg = solvmod.ConicQP.solve, solvmod.DaqpQP.solve
+
+    def cycle(sol, name):
+        return solvmod.QPSolution(sol.x, sol.lam_a, sol.lam_x, False, "-2", sol.solve_time_s, sol.cpu_time_s,
+                                  solvmod.classify_status(name, -2, False), name)
 
     def cycling(self, *a, **k):
         sol = real(self, *a, **k)
-        if self.plugin == "daqp":
-            return solvmod.QPSolution(sol.x, sol.lam_a, sol.lam_x, False, "-2", sol.solve_time_s, sol.cpu_time_s,
-                                      solvmod.classify_status("daqp", -2, False), "daqp")
-        return sol
+        return cycle(sol, "daqp") if self.plugin == "daqp" else sol
 
     monkeypatch.setattr(solvmod.ConicQP, "solve", cycling)
+    monkeypatch.setattr(solvmod.DaqpQP, "solve", lambda self, *a, **k: cycle(real_pkg(self, *a, **k), "daqp_pkg"))
     d = SeekDesigner(SeekProblem(design, ctrl, IMAX))
     res = d.design(50.0)
     assert res.settle_samples == ref.settle_samples
@@ -328,7 +334,7 @@ def test_cycling_primary_falls_back_and_designs_the_same(setup, monkeypatch):
 def test_iteration_limit_of_real_daqp_is_retried(setup):
     truth, ctrl, design = setup
     ref = SeekDesigner(SeekProblem(design, ctrl, IMAX)).design(20.0)
-    tight = SolverSettings(options={"daqp": {"daqp": {"iter_limit": 2}}})
+    tight = SolverSettings(options={"daqp_pkg": {"iter_limit": 2}, "daqp": {"daqp": {"iter_limit": 2}}})
     res = SeekDesigner(SeekProblem(design, ctrl, IMAX, solver=tight)).design(20.0)
     assert res.fallback_solves >= 1 and res.unresolved_solves == 0
     assert abs(res.settle_samples - ref.settle_samples) <= 1
@@ -337,7 +343,7 @@ def test_iteration_limit_of_real_daqp_is_retried(setup):
 def test_working_set_option_designs_as_the_full_qp(setup):
     """SolverSettings(working_set=True): the same optimum on a working set of the rows."""
     truth, ctrl, design = setup
-    full = SeekDesigner(SeekProblem(design, ctrl, IMAX, robust="n=2"))
+    full = SeekDesigner(SeekProblem(design, ctrl, IMAX, robust="n=2", solver=SolverSettings(working_set=False)))
     ws = SeekDesigner(SeekProblem(design, ctrl, IMAX, robust="n=2", solver=SolverSettings(working_set=True)))
     for K in (20.0, 150.0):
         a, b = full.design(K), ws.design(K)
@@ -576,3 +582,40 @@ def test_issue12_false_aborts_design(bundled_plant, K, robust):
     assert res.metrics.settled and res.unresolved_solves == 0
     assert res.metrics.peak_current_a <= IMAX * (1 + 1e-9)
     assert res.metrics.settle_time_s * Controller.nss().sample_rate_hz <= res.settle_samples + 1
+
+
+def test_finish_plays_a_loop_that_does_not_superpose_once(monkeypatch):
+    """A plant whose loop does not superpose (a pivot spring's rest offset, seekopt.design.predict.superposes)
+    is played once per verified design: the metrics and the unmodelled-mode guard read the same play, and
+    both equal what the simulator and guard_report give on their own."""
+    from identification.model.effects import PivotSpringDamper
+    import seekopt.design.metrics as metmod
+    import seekopt.drive.simulator as simmod
+    from seekopt.design import guard as guardmod
+    from seekopt.design.predict import superposes
+    ctrl = Controller.nss()
+    p = default_truth_plant().copy(effects=[PivotSpringDamper(30.0, 0.1, 3.0)])
+    assert p.is_linear and not superposes(p)
+    des = SeekDesigner(p, ctrl, IMAX)
+    assert des.guard_bands
+    sims, per_finish, real_sim, real_finish = [0], [], simmod.simulate_2dof, SeekDesigner._finish
+
+    def counting(*a, **k):
+        sims[0] += 1
+        return real_sim(*a, **k)
+
+    def finish(self, *a, **k):
+        before = sims[0]
+        try:
+            return real_finish(self, *a, **k)
+        finally:
+            per_finish.append(sims[0] - before)
+    monkeypatch.setattr(simmod, "simulate_2dof", counting)
+    monkeypatch.setattr(metmod, "simulate_2dof", counting)
+    monkeypatch.setattr(SeekDesigner, "_finish", finish)
+    res = des.design(200.0)
+    assert per_finish and all(n == 1 for n in per_finish), per_finish
+    monkeypatch.undo()
+    assert res.metrics == evaluate_profile(p, ctrl, res.profile, settle=0.1)
+    g = guardmod.guard_report(p, ctrl, res.profile, des.guard_bands, 0.1, curve=des.guard_curve)
+    assert (res.guard.worst_band, res.guard.worst_hz) == (g.worst_band, g.worst_hz)

@@ -32,21 +32,22 @@ from __future__ import annotations
 
 import contextlib
 import math
+import sys
 from collections import Counter
 
 import numpy as np
-from threadpoolctl import threadpool_limits
+from threadpoolctl import ThreadpoolController
 
 from identification.model.plant import ModalPlant
 
 from seekopt.design import guard as _guard, qp as _qp
-from seekopt.design.predict import play_linear, predict_on_set, scale_feedforward_maps, superposes
-from seekopt.design.metrics import DEFAULT_TAIL_S, evaluate_profile, worst_case
+from seekopt.design.predict import play_linear, predict_on_set, set_loop_maps, superposes
+from seekopt.design.metrics import DEFAULT_TAIL_S, played_metrics, worst_case
 from seekopt.design.problem import ProblemError, SeekProblem, check_closed_loop
 from seekopt.design.profiles import Profile, exact_rest, finish_profile, reference_from_model, t_bang_bang
 from seekopt.design.result import DesignError, DesignInfeasible, DesignResult, SolveStats
 from seekopt.design.search import bisect_length, gallop_length, predict_length
-from seekopt.design.solvers import SolverChain
+from seekopt.design.solvers import DAQP_PKG, SolverChain
 from seekopt.design.working_set import WorkingSetQP
 
 __all__ = ["DesignInfeasible", "DesignError", "DesignResult", "SeekDesigner", "design_seek"]
@@ -59,6 +60,22 @@ __all__ = ["DesignInfeasible", "DesignError", "DesignResult", "SeekDesigner", "d
 #: CPU; a 3-plant drift set at K = 1000: 3 s against 12.7 s CPU, where daqp failed on the whole QP and the
 #: fallback solver took 11 s).
 WORKING_SET_MIN_ROWS = 2500
+
+#: Samples of closed-loop response computed beyond the first structure's need: the size classes up to
+#: 128 samples then share the first map set (a rebuild re-simulates every plant of the set, ~0.4 s for
+#: 22 plants, where the headroom costs ~0.07 s once; the responses' first samples are the same).
+MAP_HEADROOM = 128
+
+_POOLS: list = [None, -1]      # ThreadpoolController, len(sys.modules) when it was made
+
+
+def _blas_pools() -> ThreadpoolController:
+    """The process's thread pools (threadpoolctl), found once: ``threadpool_limits`` scans the loaded
+    libraries (``/proc/self/maps``) on every call, 5 ms of a 20-50 ms nominal design.  Scanned again
+    when modules have been imported since (a new extension may bring its own BLAS)."""
+    if _POOLS[0] is None or _POOLS[1] != len(sys.modules):
+        _POOLS[:] = [ThreadpoolController(), len(sys.modules)]
+    return _POOLS[0]
 
 
 class SeekDesigner:
@@ -120,10 +137,12 @@ class SeekDesigner:
 
     # ------------------------------------------------------------------ structures
     def _loop_maps(self, horizon: int) -> list:
+        """The set's closed-loop maps (:func:`~seekopt.design.predict.set_loop_maps`: a plant whose gain
+        differs plays the profile through its drive's gain calibration), at least ``horizon`` samples
+        long (kept; grown by doubling).  The effect-aware designer's robust set reads the same maps."""
         if self._maps is None or self._maps_h < horizon:
             h = max(horizon, 2 * self._maps_h)
-            # a plant of the set whose gain differs plays the profile through its drive's gain calibration
-            self._maps = [scale_feedforward_maps(_qp.LoopMaps(p, self.controller, h), p) for p in self.plants]
+            self._maps = set_loop_maps(self.plants, self.controller, h)
             self._maps_h = h
             self.map_builds += 1
         return self._maps
@@ -135,16 +154,15 @@ class SeekDesigner:
         key = (nmax, epigraph)
         if key not in self._qps:
             H = nmax + self.tail
-            maps = self._loop_maps(nmax + max(self.tail, self.check_tail))   # long enough for the checks too
+            need = nmax + max(self.tail, self.check_tail)     # long enough for the checks too
+            maps = self._loop_maps(need + (MAP_HEADROOM if self._maps is None else 0))
             R = None
             if self.reference != "free":
                 imp = np.zeros(H); imp[0] = 1.0
                 hm = reference_from_model(self._reference_model(), imp, self.fs, H)
                 R = _qp.toeplitz_rows(hm, np.arange(H), H)
-            dfg = _guard.grid_spacing(self.fs, nmax)
-            hf = _guard.guard_rows(self.guard_bands, self.plant.k0, self.fs, self.L, H * self.L, spacing_hz=dfg,
-                                   extra_hz=_guard.loop_peaks(maps[0], self.guard_bands, self.fs, dfg),
-                                   curve=self.guard_curve)
+            hf = _guard.design_guard_rows(self.guard_bands, self.plant.k0, self.fs, nmax, H, maps[0],
+                                          curve=self.guard_curve)
             band_plants = range(len(self.plants)) if self.objective_kind == "worst" else [0]
             s = self.settings
             self._qps[key] = _qp.SeekQP(
@@ -170,7 +188,8 @@ class SeekDesigner:
         if qp not in self._ws:
             s = self.settings
             self._ws[qp] = WorkingSetQP(qp, lambda n, m: SolverChain(n, m, s.chain, s.options,
-                                                                     builds=self._count_solver))
+                                                                     builds=self._count_solver),
+                                        pad=s.qp_solver != DAQP_PKG)
         return self._ws[qp]
 
     def _solve(self, qp: _qp.SeekQP, K, n, beta, stats: SolveStats, warm=None, epigraph=False, confirm=True):
@@ -182,8 +201,9 @@ class SeekDesigner:
         def check(x, A=None):       # never trust a status alone: re-check the answer against the data
             viol = qp.violation(x, K, *bounds[1:], A=A)
             return f"constraint violation {viol:.2g}" if viol > tol else ""
-        if self.settings.working_set and (len(self.plants) > 1 or qp.m >= WORKING_SET_MIN_ROWS):
-            sol = self._working_set(qp).solve(*args, x0=warm, check=check, confirm=confirm)
+        if self.settings.working_set:     # rows screened on a plant set and big structures, else all rows
+            screen = len(self.plants) > 1 or qp.m >= WORKING_SET_MIN_ROWS
+            sol = self._working_set(qp).solve(*args, x0=warm, check=check, confirm=confirm, screen=screen)
             if getattr(sol, "unconfirmed", False):
                 stats.unconfirmed.add((id(qp), n))
         else:
@@ -251,7 +271,7 @@ class SeekDesigner:
     def _blas(self):
         """BLAS thread limit for a design (:attr:`SolverSettings.blas_threads`)."""
         n = self.settings.blas_threads
-        return threadpool_limits(limits=int(n), user_api="blas") if n else contextlib.nullcontext()
+        return _blas_pools().limit(limits=int(n), user_api="blas") if n else contextlib.nullcontext()
 
     def design(self, tracks: float, seek_samples: int | None = None) -> DesignResult:
         """Design the seek of ``tracks`` tracks.
@@ -328,25 +348,35 @@ class SeekDesigner:
     def _predicted_search(self, K, n_rigid, first, lo, stats):
         """Search from the predicted length (:meth:`_predict`): in the size class the old scan would end
         in, probe the predicted length and its neighbour, gallop (steps 1, 2, 4, ...) towards the
-        boundary, then bisect.  Returns ``(qp, class, N, answer)`` or None (no prediction, or the
-        class holds no feasible length: the class scan decides)."""
+        boundary, then bisect.  When the class holds no feasible length, its longest seek is solved
+        with ``confirm=True``: a proof moves the search on to the next class (from the length after
+        it, as the scan would end there), anything else returns None and the class scan decides.
+        Returns ``(qp, class, N, answer)`` or None (no prediction: the scan decides)."""
         n_pred = self._predict(n_rigid)
         if n_pred is None:
             return None
         classes = self._classes(first)
         c = next((x for x in classes if x >= n_pred), classes[-1])
+        went_down = False
         while True:
             qp = self._structure(c, False)
             found = gallop_length(self._probe(qp, K, stats), lo, min(max(n_pred, lo + 1), c), c)
-            if found is None:
-                return None     # nothing in this class: the class scan goes on from here
+            if found is None:   # nothing in this class (search steps): is its longest seek proven infeasible?
+                later = [x for x in classes if x > c]
+                if went_down or not later or c <= lo:
+                    return None
+                top = self._solve(qp, K, c, self.beta, stats)
+                if not top.infeasible:
+                    return None     # feasible after all, or undecided: the class scan decides
+                lo, c, n_pred = c, later[0], c + 1
+                continue
             lo_c, hi, best = found
             hi, best = self._bisect(qp, K, lo_c, hi, best, stats, floor=lo)
             # the scan takes the first class whose longest seek is feasible: a smaller class that holds
             # this length is that class (re-searched there, from this length)
             prev = [x for x in classes if x < c]
             if prev and hi <= prev[-1] and prev[-1] >= first:
-                c, n_pred = prev[-1], hi
+                c, n_pred, went_down = prev[-1], hi, True
                 continue
             return qp, c, hi, best
 
@@ -384,7 +414,10 @@ class SeekDesigner:
             prof = finish_profile(u, K, self.fs, self.imax, self._reference_model(), "optimal", self.settle,
                                   meta=meta)
             prof.seek_samples = N
-        metrics = evaluate_profile(self.plant, self.controller, prof, settle=self.settle)   # the one simulator
+        # the one simulator, played once: a guard on a loop the maps cannot play (it does not superpose)
+        # reads this play's sub-step currents
+        sub = bool(self.guard_bands) and (self._maps is None or not superposes(self.plant))
+        metrics, sim = played_metrics(self.plant, self.controller, prof, settle=self.settle, record_substeps=sub)
         if not metrics.peak_current_a <= self.imax * (1 + 1e-9):
             raise DesignError(f"design exceeds Imax in simulation ({metrics.peak_current_a:.4g} A)")
         if strict and not metrics.settle_time_s * self.fs <= N + 1 + 1e-9:
@@ -403,7 +436,8 @@ class SeekDesigner:
         if self.guard_bands:
             played = play_linear(maps[0], prof, n_play) if maps is not None and superposes(self.plant) else None
             guard = _guard.guard_report(self.plant, self.controller, prof, self.guard_bands, self.settle,
-                                        curve=self.guard_curve, current_sub=None if played is None else played[1])
+                                        curve=self.guard_curve,
+                                        current_sub=sim.current_sub_a if played is None else played[1])
             prof.meta.update(guard.to_meta())
         prof.meta["design_status"] = "verified"
         return DesignResult(prof, metrics, "verified", stats.t, sol.solver or self.solver_name, objective,

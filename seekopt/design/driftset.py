@@ -13,6 +13,7 @@ import numpy as np
 from identification.model.plant import ModalPlant, Mode
 
 from seekopt.design.members import family_spread, member
+from seekopt.design.predict import set_identity
 from seekopt.design.robust import orthogonal_array_signs   # the one Sylvester-Hadamard construction (robust vertices too)
 
 __all__ = ["drifted", "drift_set"]
@@ -98,7 +99,8 @@ def drift_set(nominal: ModalPlant, family, drift) -> list:
     feedforward gain error, delay: "temp+4% (zeta-20%) gain-5%"), the per-mode corners (every mode's frequency at
     + its range, at -; every gain at +, at -), then ``drift.n_samples`` orthogonal-array rows
     ("oa 1", ...) over the per-mode ranges (each mode's frequency, damping and gain at +- its
-    range: columns of a Sylvester-Hadamard array, strength 2).  Plants that coincide are kept once.
+    range: columns of a Sylvester-Hadamard array, strength 2).  Plants that coincide as drives
+    (:func:`~seekopt.design.predict.set_identity`: the plant and its feedforward calibration) are kept once.
     """
     rng_ = drift.ranges(nominal, family)
     nom = _vary(nominal, "nominal")
@@ -125,7 +127,7 @@ def drift_set(nominal: ModalPlant, family, drift) -> list:
             out.append(_vary(nominal, f"oa {r}", sf=s["f"] * rng_.df, sz=s["z"] * rng_.dz, sg=s["g"] * rng_.dg))
     uniq, seen = [], set()
     for p in out:
-        h = p.hash()
+        h = set_identity(p)
         if h not in seen:
             seen.add(h); uniq.append(p)
     return uniq

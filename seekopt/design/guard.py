@@ -37,7 +37,7 @@ from seekopt.design.qp import mode_residual_phasors, mode_residual_rows, mode_re
 
 __all__ = ["GuardBand", "controller_notches", "nyquist_band", "plant_blind_bands", "plant_gain_curve", "curve_gain",
            "band_gains", "merge_bands",
-           "problem_bands", "guard_grid", "grid_spacing", "loop_peaks", "guard_rows", "GRID_PER_LOBE", "GuardReport", "guard_report"]
+           "problem_bands", "guard_grid", "grid_spacing", "loop_peaks", "guard_rows", "design_guard_rows", "GRID_PER_LOBE", "GuardReport", "guard_report"]
 
 
 @dataclass
@@ -316,6 +316,21 @@ def guard_rows(bands: list, k0: float, fs: float, L: int, nsub: int, spacing_hz:
     if not f.size:
         return None
     return mode_residual_rows(mode_residual_phasors(k0, fs, L, nsub, f, g), npoly), f
+
+
+def design_guard_rows(bands: list, k0: float, fs: float, nmax: int, horizon: int, nominal_maps, curve=None):
+    """The guard rows of a design for seeks (or velocity steps) of at most ``nmax`` samples: ``(G, freqs)``
+    of :func:`guard_rows` on the sub-step currents of samples ``0..horizon-1``, on the grid
+    :func:`grid_spacing` ``(fs, nmax)`` plus the narrow peaks of the nominal loop ``nominal_maps``
+    (:func:`loop_peaks`); None when there is no band.  The one guard of the linear designer, the
+    effect-aware NLP and the long seeks (``bands``: :func:`problem_bands`, ``curve``:
+    :func:`plant_gain_curve` of the design plant)."""
+    if not bands:
+        return None
+    dfg = grid_spacing(fs, nmax)
+    L = int(nominal_maps.L)
+    return guard_rows(bands, k0, fs, L, int(horizon) * L, spacing_hz=dfg, curve=curve,
+                      extra_hz=loop_peaks(nominal_maps, bands, fs, dfg))
 
 
 @dataclass

@@ -18,8 +18,8 @@ It is designed by a QP on the condensed linear loop (:class:`seekopt.design.qp.L
 simulator) over the same plant set, current limit, unmodelled-mode guard and solver chain as
 :class:`seekopt.design.designer.SeekDesigner` (one :class:`seekopt.design.problem.SeekProblem`): minimum ``N`` such that ``|y_i(k) - r_A(k)| <= beta band`` for
 ``k >= N`` on every plant ``i`` of the set, the total current within ``gamma Imax - |bias|`` (so that the
-mirrored step, ``-u_A``, with the hold current is within ``gamma Imax`` too), the rigid velocity never above
-``d``, and the guard's residual within half its tolerance (the two steps of a seek add).
+mirrored step, ``-u_A``, with the hold current is within ``gamma Imax`` too), the rigid velocity within ``[0, d]``
+(the arrival's mirrored step runs at ``d - v_A``), and the guard's residual within half its tolerance (the two steps of a seek add).
 
 The seek
 --------
@@ -58,6 +58,8 @@ import numpy as np
 
 from identification.model.plant import ModalPlant
 
+from seekopt.design import guard as _guard
+from seekopt.design.predict import set_loop_maps
 from seekopt.design.search import bisect_length
 from seekopt.design.velocity_step import StepQP, VelocityStep
 
@@ -186,7 +188,9 @@ class LongSeekDesigner:
         self.spec = spec if spec is not None else LongSeekSpec.from_plant(p.plant, p.imax_a)
         self.fs, self.L = p.sample_rate_hz, int(p.controller.fast_multiple)
         self.beta, self.gamma = p.band_margin, p.current_margin
-        self.hf_guard, self.hf_gain, self.hf_tol = p.hf_guard, p.hf_gain, p.hf_tol
+        self.hf_tol = p.hf_tol
+        self.guard_bands = _guard.problem_bands(p)     # Nyquist, controller notches, blind bands
+        self.guard_curve = _guard.plant_gain_curve(p.plant)
         self.solver = p.solver.qp_solver
         if abs(p.plant.bias_a) >= self.gamma * self.imax:
             raise LongSeekError(f"bias {p.plant.bias_a:g} A leaves no current for a seek at Imax {self.imax:g} A")
@@ -199,22 +203,26 @@ class LongSeekDesigner:
 
     # ------------------------------------------------------------------ velocity steps
     def _loop_maps(self, horizon):
-        from seekopt.design.qp import LoopMaps
+        """The set's closed-loop maps as the linear designer's (:func:`~seekopt.design.predict.set_loop_maps`:
+        each plant with its drive's feedforward calibration), at least ``horizon`` samples long (kept)."""
         if self._maps is None or self._maps_h < horizon:
             h = max(horizon, int(1.5 * self._maps_h))
-            self._maps = [LoopMaps(p, self.controller, h) for p in self.plants]
+            self._maps = set_loop_maps(self.plants, self.controller, h)
             self._maps_h = h
         return self._maps
 
+    def _guard_rows(self, nmax, maps):
+        """The linear designer's unmodelled-mode guard rows (:func:`~seekopt.design.guard.design_guard_rows`:
+        Nyquist band, controller notches, the plant's blind bands) for steps of at most ``nmax`` samples
+        over ``nmax + tail`` samples; None without a band."""
+        rows = _guard.design_guard_rows(self.guard_bands, self.plant.k0, self.fs, nmax, nmax + self.tail, maps[0],
+                                        curve=self.guard_curve)
+        return None if rows is None else rows[0]
+
     def _qp(self, nmax, nlo):
-        from seekopt.design.qp import hf_guard_matrix
         H = nmax + self.tail
         maps = self._loop_maps(H)
-        hf = None
-        if self.hf_guard:
-            lo, hi = self.hf_guard
-            hf = hf_guard_matrix(self.plant.k0, self.fs, self.L, H * self.L, lo * self.fs, hi * self.fs,
-                                 self.hf_gain, spacing_hz=max(self.fs / (2 * nmax), 50.0))[0]
+        hf = self._guard_rows(nmax, maps)
         return StepQP(maps, nmax, H, self.plant.k0, self.fs, self.plant.total_delay_s * self.fs, self.imax,
                        self.settle, self.plant.bias_a, hf, nlo, self.problem.solver)
 
@@ -229,7 +237,7 @@ class LongSeekDesigner:
         gam = self.gamma - abs(self.plant.bias_a) / self.imax
         n_rigid = int(math.ceil(d / (c * gam * self.imax) - 1e-9))
         lo = max(n_rigid - 1, 1)
-        hf_tol = 0.5 * self.hf_tol if self.hf_guard else None
+        hf_tol = 0.5 * self.hf_tol if self.guard_bands else None
         nmax, best, qp, n_solves = max(16, int(math.ceil(1.3 * n_rigid + 12))), None, None, 0
         self._loop_maps(int(1.5 * nmax) + self.tail)     # once for the first two size classes
         while nmax <= 4096:

@@ -28,8 +28,8 @@ from identification.model.plant import ModalPlant
 from seekopt.design.profiles import Profile, t_bang_bang
 from seekopt.drive.simulator import Disturbances, SimResult, simulate_2dof
 
-__all__ = ["SeekMetrics", "settle_time", "settle_index", "evaluate_profile", "simulate_profile", "seek_metrics",
-           "worst_case", "DEFAULT_TAIL_S"]
+__all__ = ["SeekMetrics", "settle_time", "settle_index", "evaluate_profile", "played_metrics", "simulate_profile",
+           "seek_metrics", "worst_case", "DEFAULT_TAIL_S"]
 
 #: Default simulated time after the end of the profile [s].
 DEFAULT_TAIL_S = 0.015
@@ -90,12 +90,14 @@ def settle_time(pes, fs: float, band: float = 0.1) -> float:
 
 
 def simulate_profile(plant: ModalPlant, controller, profile: Profile, *, horizon_s: float | None = None,
-                     disturbances: Disturbances | None = None, hold: bool = True) -> SimResult:
+                     disturbances: Disturbances | None = None, hold: bool = True,
+                     record_substeps: bool = False) -> SimResult:
     """Play ``profile`` from rest at track 0 in the closed loop (:func:`simulate_2dof`).
 
     ``horizon_s`` is the total simulated time [s] (default: the profile plus
     :data:`DEFAULT_TAIL_S`); ``hold`` adds the plant's hold current ``-bias_a`` to the
-    feedforward (the drive's pre-seek steady state, see the module notes).
+    feedforward (the drive's pre-seek steady state, see the module notes); ``record_substeps``
+    also returns the sub-step currents (``SimResult.current_sub_a``, A).
     """
     fs = float(controller.sample_rate_hz)
     if abs(fs - profile.sample_rate_hz) > 1e-9 * fs:
@@ -105,7 +107,8 @@ def simulate_profile(plant: ModalPlant, controller, profile: Profile, *, horizon
     u, r = profile.padded(n)
     if hold:
         u = u - plant.bias_a
-    return simulate_2dof(plant, controller, u, r, position0=0.0, disturbances=disturbances)
+    return simulate_2dof(plant, controller, u, r, position0=0.0, disturbances=disturbances,
+                         record_substeps=record_substeps)
 
 
 def evaluate_profile(plant: ModalPlant, controller, profile: Profile, *, settle: float = 0.1,
@@ -130,9 +133,19 @@ def evaluate_profile(plant: ModalPlant, controller, profile: Profile, *, settle:
     k0_for_tbb : float, optional
         Rigid-body gain for ``T_bb`` (default ``plant.k0``).
     """
-    res = simulate_profile(plant, controller, profile, horizon_s=horizon_s, disturbances=disturbances)
+    return played_metrics(plant, controller, profile, settle=settle, horizon_s=horizon_s, disturbances=disturbances,
+                          k0_for_tbb=k0_for_tbb)[0]
+
+
+def played_metrics(plant: ModalPlant, controller, profile: Profile, *, settle: float = 0.1,
+                   horizon_s: float | None = None, disturbances: Disturbances | None = None,
+                   k0_for_tbb: float | None = None, record_substeps: bool = False) -> tuple[SeekMetrics, SimResult]:
+    """``(metrics, play)``: :func:`evaluate_profile`'s metrics and the :func:`simulate_profile` play they
+    were measured on (``record_substeps``: with its sub-step currents), for callers that need both."""
+    res = simulate_profile(plant, controller, profile, horizon_s=horizon_s, disturbances=disturbances,
+                           record_substeps=record_substeps)
     return seek_metrics(res.true_position_track - profile.tracks, res.peak_current_a, profile,
-                        float(controller.sample_rate_hz), settle, k0_for_tbb or plant.k0)
+                        float(controller.sample_rate_hz), settle, k0_for_tbb or plant.k0), res
 
 
 def seek_metrics(pes, peak_current_a: float, profile: Profile, fs: float, settle: float, k0: float) -> SeekMetrics:

@@ -35,7 +35,7 @@ import numpy as np
 
 from identification.model.plant import ModalPlant
 
-from seekopt.design import guard as _guard, qp as _qp
+from seekopt.design import guard as _guard
 from seekopt.design.designer import DesignResult, SeekDesigner
 from seekopt.design.feasibility import (compensate, hold_check, hold_current, nonlinear_effects, play_seek,
                                         resolve_start)
@@ -130,8 +130,14 @@ class EffectAwareDesigner:
         self.tail = max(int(round(self.settings.tail_s * self.fs)), 16)
         self._nlps: dict = {}
         self._spreads: dict = {}
-        self._maps = None
         self._derated: dict = {}
+
+    def _set_maps(self, c: int) -> list:
+        """The robust set's closed-loop maps for the size class ``c``: the linear designer's
+        (:meth:`SeekDesigner._loop_maps`, each plant with its drive's feedforward calibration), long
+        enough for the NLP's horizon and tail and the linear designer's guard horizon."""
+        need = max(c + 2 * self.tail + 1, c + self.linear.tail + 1)
+        return self.linear._loop_maps(need)
 
     def _nlp(self, n: int):
         """``(SeekNLP, RobustSpread or None)`` of the size class of ``n`` samples (built on first use)."""
@@ -140,25 +146,20 @@ class EffectAwareDesigner:
             raise NLPDesignError(f"seek of {n} samples is longer than the largest NLP "
                                  f"({self.settings.max_samples} samples)")
         if c not in self._nlps:
-            H = c + self.tail
-            Hq = c + self.linear.tail                   # the linear designer's horizon (its guard rows)
-            need = max(H + 1 + self.tail, Hq + 1)
-            if self._maps is None or self._maps[0].horizon < need:
-                self._maps = [_qp.LoopMaps(p, self.controller, need) for p in self.linear.plants]
+            maps = self._set_maps(c)
             if len(self.linear.plants) > 1:
                 prev = max([k for k in self.sizes if k < c], default=0)
-                self._spreads[c] = RobustSpread(self._maps, c, H, self.settle, nmax_prev=prev)
-            guard = None
-            if self.linear.guard_bands:         # the linear designer's unmodelled-mode guard: same bands,
-                dfg = _guard.grid_spacing(self.fs, c)   # rows and horizon, on the nominal linear loop
-                rows = _guard.guard_rows(self.linear.guard_bands, self.plant.k0, self.fs, self.L, Hq * self.L,
-                                         spacing_hz=dfg, curve=self.linear.guard_curve,
-                                         extra_hz=_guard.loop_peaks(self._maps[0], self.linear.guard_bands,
-                                                                    self.fs, dfg))
-                if rows is not None:
-                    Tiu, Tir, sir = self._maps[0].current_rows(Hq, c)
-                    G = rows[0]
-                    guard = (np.hstack([G @ Tiu, G @ Tir]) / self.settle, G @ sir / self.settle)
+                self._spreads[c] = RobustSpread(maps, c, c + self.tail, self.settle, nmax_prev=prev,
+                                                stride=self.linear._stride(c))
+            # the linear designer's unmodelled-mode guard: same bands, rows and horizon, on the nominal
+            # linear loop
+            guard, Hq = None, c + self.linear.tail
+            rows = _guard.design_guard_rows(self.linear.guard_bands, self.plant.k0, self.fs, c, Hq, maps[0],
+                                            curve=self.linear.guard_curve)
+            if rows is not None:
+                Tiu, Tir, sir = maps[0].current_rows(Hq, c)
+                G = rows[0]
+                guard = (np.hstack([G @ Tiu, G @ Tir]) / self.settle, G @ sir / self.settle)
             self._nlps[c] = SeekNLP(self.nlp_plant, self.controller, c, self.tail, self.settle, self.settings,
                                     spread=self._spreads.get(c), guard=guard, guard_tol=self.problem.hf_tol)
         return self._nlps[c], self._spreads.get(c)

@@ -179,10 +179,11 @@ class RobustSpread:
     ``maps``: :class:`seekopt.design.qp.LoopMaps` of the set's (linear) plants, nominal first, horizon
     above ``horizon``.  Every other plant's PES [band] and sub-step current [Imax] minus the nominal's
     is linear in the scaled ``(v, q)``: ``dT_u Imax v + dT_r |K| q + K ds_r``.  Band rows of the NLP on
-    the samples ``band_samples`` (:meth:`band_rows`); :meth:`spread` for checks and the current envelope.
+    the samples ``band_samples`` (the linear designer's rule, :func:`seekopt.design.qp.set_row_samples`
+    with its row ``stride``) (:meth:`rows`); :meth:`spread` for checks and the current envelope.
     """
 
-    def __init__(self, maps: list, nmax: int, horizon: int, band: float, nmax_prev: int = 0):
+    def __init__(self, maps: list, nmax: int, horizon: int, band: float, nmax_prev: int = 0, stride: int = 1):
         N, H = int(nmax), int(horizon)
         ks = np.arange(H + 1)
         (Y0u, Y0r, y0), (I0u, I0r, i0) = maps[0].position_rows(ks, N), maps[0].current_rows(H, N)
@@ -192,13 +193,13 @@ class RobustSpread:
             self.DY.append(np.hstack([Yu - Y0u, Yr - Y0r]) / band); self.dy.append((yj - y0) / band)
             self.DI.append(np.hstack([Iu - I0u, Ir - I0r])); self.di.append(ij - i0)
         self.n, self.N = len(maps) - 1, N
-        # robust rows of the NLP: samples that can follow a seek of this class (k > nmax_prev), every
-        # sample up to nmax + 32, every 2nd to nmax + 64, every 4th after (the slow closed-loop tail;
-        # the spread is re-checked on every sample and the simulator plays every sample); currents on
-        # every sub-step of the seek and 8 samples more (as the linear designer)
-        kb = np.concatenate([np.arange(nmax_prev + 1, N + 32), np.arange(N + 32, N + 64, 2),
-                             np.arange(N + 64, H + 1, 4)])
-        self.band_samples = np.unique(kb[(kb <= H) & (kb > nmax_prev)]).astype(int)
+        # robust rows of the NLP: the linear designer's rows of the set's other plants
+        # (seekopt.design.qp.set_row_samples, ``stride`` its thinning of this class) on the samples that can
+        # follow a seek of this class (k > nmax_prev; the spread is re-checked on every sample and the
+        # simulator plays every sample); currents on every sub-step of the seek and 8 samples more (as the
+        # linear designer)
+        kb = _qp.set_row_samples(N, H + 1, stride)
+        self.band_samples = kb[kb > nmax_prev]
         self.current_substeps = np.arange(min(H, N + 8) * maps[0].L)
 
     def rows(self):

@@ -15,8 +15,10 @@ import numpy as np
 
 from identification.model.plant import ModalPlant
 
-__all__ = ["set_label", "feedforward_scale", "calibrated", "played_on", "scale_feedforward_maps", "SetPrediction",
-           "predict_on_set", "superposes", "play_linear"]
+from seekopt.design.qp import LoopMaps
+
+__all__ = ["set_label", "feedforward_scale", "set_identity", "calibrated", "played_plant", "played_on",
+           "scale_feedforward_maps", "set_loop_maps", "SetPrediction", "predict_on_set", "superposes", "play_linear"]
 
 
 def set_label(plant: ModalPlant) -> str:
@@ -29,12 +31,28 @@ def feedforward_scale(plant: ModalPlant) -> float:
     return float((plant.meta or {}).get("ff_scale", 1.0))
 
 
+def set_identity(plant: ModalPlant) -> tuple:
+    """What makes ``plant`` a drive of its own in a robust set: the plant (:meth:`ModalPlant.hash`, which
+    leaves out ``meta``) and the drive's feedforward calibration (:func:`feedforward_scale`, 12 digits).
+    Two plants of a set equal in both are one drive; equal plants played with different calibrations
+    (the corners of a feedforward-gain error) are not."""
+    return plant.hash(), float(f"{feedforward_scale(plant):.12g}")
+
+
 def calibrated(member: ModalPlant, design_k0: float, gain_estimate: float | None = None) -> ModalPlant:
     """``member`` with the feedforward scale its drive applies: design gain / its gain estimate
     (default its own ``k0``: a member identified from its own log knows its gain)."""
     meta = dict(member.meta or {})
     meta["ff_scale"] = float(design_k0) / float(gain_estimate or member.k0)
     return member.copy(meta=meta)
+
+
+def played_plant(truth: ModalPlant, design_k0: float) -> ModalPlant:
+    """``truth`` as its drive plays a design made for the gain ``design_k0`` [track/(A s^2)]: a truth of
+    another gain (another member of the family, relative difference above 1e-6) is :func:`calibrated` to
+    it, otherwise ``truth`` itself (its own calibration, if any, kept).  Play profiles on it through
+    :func:`played_on`; the bench's table, its figure and the effect bench all do."""
+    return calibrated(truth, design_k0) if abs(truth.k0 / float(design_k0) - 1.0) > 1e-6 else truth
 
 
 def played_on(profile, plant: ModalPlant):
@@ -57,6 +75,15 @@ def scale_feedforward_maps(maps, plant: ModalPlant):
         maps.y_u = maps.y_u * s
         maps.i_u = maps.i_u * s
     return maps
+
+
+def set_loop_maps(plants: list, controller, horizon: int) -> list:
+    """The closed-loop maps of a plant set as the drive plays a profile on each: one
+    :class:`seekopt.design.qp.LoopMaps` per plant over ``horizon`` samples, its feedforward columns
+    scaled by the plant's calibration (:func:`scale_feedforward_maps`).  The one construction of the
+    maps the designers constrain (the linear designer, the effect-aware NLP's robust set, the long
+    seeks' velocity steps) and the predictions play."""
+    return [scale_feedforward_maps(LoopMaps(p, controller, int(horizon)), p) for p in plants]
 
 
 @dataclass

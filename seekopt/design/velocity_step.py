@@ -147,7 +147,7 @@ class StepQP:
             Tiu, Tir = toeplitz_rows(maps[0].i_u, np.arange(H), N), toeplitz_rows(maps[0].i_r, np.arange(H), H)
             blocks.append(np.hstack([imax * G @ (Tiu + Tir @ self.ramp), self.sigma * G @ Tir @ E]) / band)
             kinds += [("hf", 0, j) for j in range(G.shape[0])]
-        cum = np.tril(np.ones((N, N))) / N          # rigid velocity never above d; and = d at the end
+        cum = np.tril(np.ones((N, N))) / N          # rigid velocity within [0, d]; and = d at the end
         blocks.append(np.hstack([cum, np.zeros((N, N))])); kinds += [("vel", 0, j) for j in range(N)]
         A = np.vstack(blocks)
         self.A = A
@@ -183,7 +183,9 @@ class StepQP:
             lba[hf], uba[hf] = -hf_tol, hf_tol
         vel = self.kind == "vel"
         V = d / (self.c * self.imax * N)
-        uba[vel] = V * (1 + 1e-9)
+        # within [0, d]: the seek's arrival runs at s (d - v_A), so a velocity below 0 (a back-swing at the
+        # start) would carry the seek above the limit
+        lba[vel], uba[vel] = 0.0, V * (1 + 1e-9)
         last = vel & (self.sample == nseek - 1)      # one equality row (the rows after it repeat it)
         lba[last] = uba[last] = V
         uba[vel & (self.sample >= nseek)] = np.inf

@@ -24,11 +24,12 @@ from seekopt.design.designer import DesignInfeasible, SeekDesigner
 from seekopt.design.metrics import SeekMetrics, evaluate_profile, simulate_profile
 from seekopt.design.problem import SeekProblem
 from seekopt.design.profiles import Profile, t_bang_bang
-from seekopt.design.family import Drift, calibrated, played_on
+from seekopt.design.family import Drift
+from seekopt.design.predict import played_on, played_plant
 from seekopt.design.robust import RobustSpec
 
 __all__ = ["BenchRow", "BenchResult", "baseline_profile", "tuned_baseline", "perturbed_plant", "mode_response",
-           "run_bench", "format_table", "plot_bench", "DEFAULT_ROBUST", "TUNE_FACTORS"]
+           "run_bench", "format_table", "played_seeks", "plot_bench", "DEFAULT_ROBUST", "TUNE_FACTORS"]
 
 #: Robust variant of the bench: what ``seekopt design`` does by default, a
 #: :class:`~seekopt.design.family.Drift` with every range from the data (reported std, the family's
@@ -71,12 +72,16 @@ class BenchRow:
 
 @dataclass
 class BenchResult:
+    """A bench's rows; ``design_k0`` [track/(A s^2)]: the gain the profiles were designed for (the
+    evaluation plant plays them through its drive's calibration to it, :func:`played_seeks`)."""
+
     tracks: float
     imax: float
     settle: float
     t_bb_s: float
     rows: list
     figures: list = field(default_factory=list)
+    design_k0: float | None = None
 
     def row(self, label: str) -> BenchRow:
         return next(r for r in self.rows if r.label == label)
@@ -134,7 +139,7 @@ def run_bench(plant: ModalPlant, controller, tracks: float, imax: float, settle:
     evalp = truth or plant
     # a truth of another gain (another member of the family) plays every profile through its drive's
     # seek-gain calibration: feedforward x design gain / its gain (seekopt.design.family, module notes)
-    played = calibrated(evalp, plant.k0) if abs(evalp.k0 / plant.k0 - 1.0) > 1e-6 else evalp
+    played = played_plant(evalp, plant.k0)
     tbb = t_bang_bang(tracks, plant.k0, imax)
     rows = []
 
@@ -172,7 +177,7 @@ def run_bench(plant: ModalPlant, controller, tracks: float, imax: float, settle:
             best = min(ref)
             for r in rows:
                 setattr(r, attr, r.settle_time_s / best if best > 0 else math.inf)
-    out = BenchResult(float(tracks), float(imax), float(settle), tbb, rows)
+    out = BenchResult(float(tracks), float(imax), float(settle), tbb, rows, design_k0=float(plant.k0))
     if figures:
         out.figures.append(plot_bench(out, evalp, controller, Path(figures), mode_hz=mode_hz))
     return out
@@ -207,9 +212,20 @@ def format_table(res: BenchResult) -> str:
     return "\n".join(lines)
 
 
+def played_seeks(res: BenchResult, plant: ModalPlant, controller, horizon_s: float | None = None) -> dict:
+    """``{row label: SimResult}``: every profile of ``res`` played on the evaluation ``plant`` from rest at
+    track 0 (:func:`seekopt.design.metrics.simulate_profile`) as the table played it, through the drive's
+    calibration to ``res.design_k0`` (:func:`seekopt.design.predict.played_plant`); ``horizon_s`` the
+    simulated time [s] (default: each profile plus the metrics' tail)."""
+    played = plant if res.design_k0 is None else played_plant(plant, res.design_k0)
+    return {r.label: simulate_profile(played, controller, played_on(r.profile, played), horizon_s=horizon_s)
+            for r in res.rows if r.profile is not None}
+
+
 def plot_bench(res: BenchResult, plant: ModalPlant, controller, folder: Path, mode_hz: float = 1738.0,
                tail_s: float = 0.004) -> Path:
-    """Current, PES and one mode's response vs time for every profile of ``res`` (Fig. 9/10 style)."""
+    """Current, PES and one mode's response vs time for every profile of ``res`` (Fig. 9/10 style), each
+    played as the table played it (:func:`played_seeks`; ``plant`` the evaluation plant)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -221,10 +237,11 @@ def plot_bench(res: BenchResult, plant: ModalPlant, controller, folder: Path, mo
     FigureCanvasAgg(fig)
     ax = fig.subplots(3, 1, sharex=True)
     n = max((r.profile.n for r in res.rows if r.profile is not None), default=1) + int(tail_s * fs)
+    sims = played_seeks(res, plant, controller, horizon_s=n / fs)
     for r in res.rows:
         if r.profile is None:
             continue
-        sim = simulate_profile(plant, controller, r.profile, horizon_s=n / fs)
+        sim = sims[r.label]
         t = sim.time_s * 1e3
         lab = f"{r.label} (T_ss {r.settle_time_s * 1e3:.2f} ms)"
         ax[0].plot(t, sim.current_a + plant.bias_a, lw=1, label=lab)

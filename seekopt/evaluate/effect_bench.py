@@ -18,6 +18,7 @@ from identification.model.plant import ModalPlant
 from seekopt.design.feasibility import play_seek, resolve_start
 from seekopt.design.metrics import SeekMetrics
 from seekopt.design.nlp import EffectAwareDesigner, NLPSettings
+from seekopt.design.predict import played_on, played_plant
 from seekopt.design.profiles import t_bang_bang
 from seekopt.evaluate.bench import BenchResult, BenchRow, baseline_profile
 
@@ -39,7 +40,8 @@ def run_effect_bench(plant: ModalPlant, controller, tracks: float, imax: float, 
     start_track : float, optional
         Default: the middle of the plant's fitted range (:func:`seekopt.design.feasibility.resolve_start`).
     truth : ModalPlant, optional
-        Evaluation plant (default: ``plant``).
+        Evaluation plant (default: ``plant``); one of another gain plays every profile through its drive's
+        calibration (:func:`seekopt.design.predict.played_plant`), as :func:`seekopt.evaluate.bench.run_bench`.
     robust : RobustSpec, optional
         Robust set of both designs.
 
@@ -47,12 +49,12 @@ def run_effect_bench(plant: ModalPlant, controller, tracks: float, imax: float, 
     with infinite settle time and the error in its note (never a profile).
     """
     fs = float(controller.sample_rate_hz)
-    evalp = truth or plant
+    played = played_plant(truth or plant, plant.k0)
     T0 = resolve_start(plant, tracks, start_track)
     rows = []
 
     def add(label, kind, prof, dt=0.0, note=""):
-        m, _ = play_seek(evalp, controller, prof, T0, settle=settle, k0_for_tbb=plant.k0)
+        m, _ = play_seek(played, controller, played_on(prof, played), T0, settle=settle, k0_for_tbb=plant.k0)
         rows.append(BenchRow(label, kind, m, design_time_s=dt, note=note, profile=prof))
 
     for kind in ("sine", "windowed_sine"):
@@ -75,4 +77,5 @@ def run_effect_bench(plant: ModalPlant, controller, tracks: float, imax: float, 
     best = min(r.settle_time_s for r in rows if r.kind == "baseline")
     for r in rows:
         r.ratio_best_baseline = r.settle_time_s / best if best > 0 else math.inf
-    return BenchResult(float(tracks), float(imax), float(settle), t_bang_bang(tracks, plant.k0, imax), rows)
+    return BenchResult(float(tracks), float(imax), float(settle), t_bang_bang(tracks, plant.k0, imax), rows,
+                       design_k0=float(plant.k0))

@@ -22,8 +22,8 @@ from seekopt.evaluate.engines import one_line, worker_held
 from seekopt.evaluate.sweep_config import (METRICS, TUNE_FACTORS, SweepError, cell_key, controller_at_tpi,
                                            controller_factor)
 
-__all__ = ["BaselineDesigner", "designer_factory", "baseline_profile", "evaluate", "CellRunner", "compute_cell",
-           "run_cell_in_worker"]
+__all__ = ["BaselineDesigner", "OCP_SPECS", "designer_problem", "designer_factory", "baseline_profile", "evaluate",
+           "CellRunner", "compute_cell", "run_cell_in_worker"]
 
 
 # ------------------------------------------------------------------ designers
@@ -45,17 +45,33 @@ class BaselineDesigner:
                                objective="shortest_bang_bang", solve_time_s=time.perf_counter() - t0)
 
 
-def designer_factory(spec: str, family=None, drift: str | None = None):
+#: the designer specs built on :class:`seekopt.design.designer.SeekDesigner` (nominal / robust)
+OCP_SPECS = ("ocp", "ocp-robust")
+
+
+def designer_problem(spec: str, plant, controller, imax: float, settle: float, family=None, drift: str | None = None,
+                     **options):
+    """The :class:`seekopt.design.problem.SeekProblem` of a built-in designer ``spec`` (None for any other):
+    ``ocp`` the nominal plant, ``ocp-robust`` the default :class:`seekopt.design.family.Drift` (or
+    ``drift``); both hold the ``family`` members (already at the plant's TPI).  ``options``: further
+    :class:`SeekProblem` fields (e.g. ``current_margin``).  The one place the sweep, its cells and the
+    export build a designer's problem."""
+    if spec not in OCP_SPECS:
+        return None
+    from seekopt.design.family import Drift
+    from seekopt.design.problem import SeekProblem
+    robust = Drift.from_string(drift) if spec == "ocp-robust" else None
+    return SeekProblem(plant, controller, imax, settle, robust=robust, family=list(family or []), **options)
+
+
+def designer_factory(spec: str, family=None, drift: str | None = None, **options):
     """``f(plant, controller, imax, settle) -> designer``; the built-in ``ocp`` (nominal) and ``ocp-robust``
-    (the default :class:`seekopt.design.family.Drift`, or ``drift``) designs also hold the ``family``
-    members (already at the cell's TPI)."""
-    if spec in ("ocp", "ocp-robust"):
+    designs are :class:`~seekopt.design.designer.SeekDesigner` of :func:`designer_problem` (``family``,
+    ``drift`` and the problem ``options``); ``baseline`` and ``module:attr`` designers take no options."""
+    if spec in OCP_SPECS:
         from seekopt.design.designer import SeekDesigner
-        from seekopt.design.family import Drift
-        from seekopt.design.problem import SeekProblem
-        robust = Drift.from_string(drift) if spec == "ocp-robust" else None
-        return lambda plant, controller, imax, settle: SeekDesigner(SeekProblem(
-            plant, controller, imax, settle, robust=robust, family=list(family or [])))
+        return lambda plant, controller, imax, settle: SeekDesigner(designer_problem(
+            spec, plant, controller, imax, settle, family, drift, **options))
     if spec == "baseline":
         return BaselineDesigner
     mod, _, attr = spec.partition(":")

@@ -9,12 +9,19 @@ Physical settings (converted to tracks per TPI with the TPI's track pitch)
     ``stroke_mm`` (``--stroke-mm``, else the plant's ``meta["stroke_mm"]`` / ``meta["stroke_track"]`` at the
     plant's own pitch) and ``vmax_mps`` (``--vmax-mps``, else the plant's metadata, see
     :mod:`seekopt.design.longseek`; none: see :mod:`seekopt.export.build`).
+Designers
+    The sweep's own (:func:`seekopt.evaluate.sweep_cell.designer_factory`): the ``ocp`` designers on the
+    problem its cells designed on (:func:`seekopt.evaluate.sweep_cell.designer_problem`: the default
+    :class:`~seekopt.design.family.Drift` or the sweep's ``drift``, the family members at the TPI), the long
+    seeks on that same problem.  ``sweep.json`` is read once (:func:`read_sweep`) and passed down.
 Current margin
     Tables play both directions, and the hold current ``-bias_a`` adds to one of them: the anchors of the
     ``ocp`` designers are designed with ``current_margin = 0.97 - 2 |bias_a| / Imax`` so that both directions
     stay within ``0.97 Imax`` (velocity steps bound ``|i| <= 0.97 Imax - |bias|`` themselves).  Other
     designers are used as the sweep built them; the peak current of every class in both directions is
-    measured and recorded (``meta["peak_current_a"]``), and a warning printed when it exceeds Imax.
+    measured on a linear plant (:func:`seekopt.export.verify.play_rule`: superposition, or the simulator when
+    the loop does not superpose) and recorded (``meta["peak_current_a"]``), and a warning printed when it
+    exceeds Imax.
 
 A single design (a Profile CSV from ``seekopt design``) is exported as one table in the format of
 :mod:`seekopt.export.tables` (:func:`table_set_from_profile`).
@@ -33,13 +40,15 @@ import numpy as np
 from seekopt.export.classes import RuleError, SeekRule, frac_bits_for
 from seekopt.export.tables import ExportError, read_sweep_json
 
-__all__ = ["resolve_physical", "sweep_stroke_mm", "build_rule", "write_seek", "write_seek_json", "write_seek_csv",
-           "table_set_from_profile", "export_designer", "SEEK_BASENAME"]
+__all__ = ["read_sweep", "resolve_physical", "sweep_stroke_mm", "build_rule", "write_seek", "write_seek_json",
+           "write_seek_csv", "table_set_from_profile", "export_designer", "export_longseek", "SEEK_BASENAME"]
 
 SEEK_BASENAME = "seekopt_seek"
 
 
-def _read_sweep(results_dir):
+def read_sweep(results_dir):
+    """``(SweepConfig, the parsed sweep.json)`` of a sweep results folder, read once for the whole export
+    (one-line :class:`ExportError` for a missing folder, no or unreadable ``sweep.json``)."""
     from seekopt.evaluate.sweep import SweepConfig
     root, d = read_sweep_json(results_dir)
     try:
@@ -67,42 +76,55 @@ def resolve_physical(plant0, imax: float, stroke_mm=None, vmax_mps=None):
     return stroke_mm, vmax_mps
 
 
-def sweep_stroke_mm(results_dir, stroke_mm=None, vmax_mps=None):
+def sweep_stroke_mm(results_dir, stroke_mm=None, vmax_mps=None, sweep=None):
     """The stroke [mm] of a sweep's drive (argument or plant metadata; None if neither), after checking the
-    physical settings (one-line :class:`ExportError`)."""
-    cfg, _ = _read_sweep(results_dir)
+    physical settings (one-line :class:`ExportError`); ``sweep``: :func:`read_sweep` of the folder when
+    already read."""
+    cfg, _ = sweep or read_sweep(results_dir)
     return resolve_physical(cfg.plant, cfg.imax, stroke_mm, vmax_mps)[0]
 
 
-def export_designer(spec: str, plant, controller, imax: float, settle: float):
-    """The anchor designer for a sweep's designer ``spec`` (module notes: current margin)."""
-    if spec in ("ocp", "ocp-robust"):
-        from seekopt.design.designer import SeekDesigner
-        from seekopt.design.problem import SeekProblem
-        from seekopt.design.robust import RobustSpec
-        margin = 0.97 - 2 * abs(plant.bias_a) / imax
-        if margin <= 0.5:
-            raise ExportError(f"bias {plant.bias_a:g} A is too large for Imax {imax:g} A")
-        return SeekDesigner(SeekProblem(plant, controller, imax, settle, current_margin=margin,
-                                        robust=RobustSpec() if spec == "ocp-robust" else None))
-    from seekopt.evaluate.sweep_cell import designer_factory
-    return designer_factory(spec)(plant, controller, imax, settle)
+def export_designer(spec: str, plant, controller, imax: float, settle: float, family=(), drift: str | None = None):
+    """The anchor designer for a sweep's designer ``spec``: the sweep's own
+    (:func:`seekopt.evaluate.sweep_cell.designer_factory`: the same robust set, ``drift`` and ``family``
+    members at the plant's TPI), the ``ocp`` ones with the export's current margin (module notes)."""
+    from seekopt.evaluate.sweep_cell import OCP_SPECS, designer_factory
+    if spec not in OCP_SPECS:
+        return designer_factory(spec)(plant, controller, imax, settle)
+    margin = 0.97 - 2 * abs(plant.bias_a) / imax
+    if margin <= 0.5:
+        raise ExportError(f"bias {plant.bias_a:g} A is too large for Imax {imax:g} A")
+    return designer_factory(spec, family, drift, current_margin=margin)(plant, controller, imax, settle)
+
+
+def export_longseek(spec: str, plant, controller, imax: float, settle: float, long_spec, family=(),
+                    drift: str | None = None):
+    """The long-seek designer (:class:`seekopt.design.longseek.LongSeekDesigner`) of a sweep's designer
+    ``spec``: the ``ocp`` ones on the sweep's problem (:func:`seekopt.evaluate.sweep_cell.designer_problem`:
+    the same robust set and family as the anchors; the velocity steps bound their current with the hold
+    themselves), any other designer on the nominal plant."""
+    from seekopt.design.longseek import LongSeekDesigner
+    from seekopt.evaluate.sweep_cell import designer_problem
+    problem = designer_problem(spec, plant, controller, imax, settle, family, drift)
+    if problem is None:
+        return LongSeekDesigner(plant, controller, imax, settle, None, long_spec)
+    return LongSeekDesigner(problem, long_spec)
 
 
 def build_rule(results_dir, *, stroke_mm=None, vmax_mps=None, budget_kib: float = 64.0, settings=None,
-               progress: bool = True) -> SeekRule:
-    """Playable tables (every length 1..stroke, per TPI) for a sweep results folder (module notes).
+               progress: bool = True, sweep=None) -> SeekRule:
+    """Playable tables (every length 1..stroke, per TPI) for a sweep results folder (module notes);
+    ``sweep``: :func:`read_sweep` of the folder when already read.
 
     Raises :class:`ExportError` (one line) for a missing folder, no stroke, bad settings -- before designing.
     """
     from tqdm.auto import tqdm
     from seekopt import __version__
-    from seekopt.design.longseek import LongSeekDesigner, LongSeekSpec
-    from seekopt.design.robust import RobustSpec
+    from seekopt.design.longseek import LongSeekSpec
     from seekopt.evaluate.sweep import controller_at_tpi
     from seekopt.export.build import AnchorDesigner, ClassSettings, build_seek_set
-    from seekopt.export.verify import play_linear
-    cfg, raw = _read_sweep(results_dir)
+    from seekopt.export.verify import play_rule
+    cfg, raw = sweep or read_sweep(results_dir)
     if not (math.isfinite(budget_kib) and budget_kib > 0):
         raise ExportError(f"--budget-kib must be a positive number (got {budget_kib})")
     stroke_mm, vmax_mps = resolve_physical(cfg.plant, cfg.imax, stroke_mm, vmax_mps)
@@ -124,22 +146,22 @@ def build_rule(results_dir, *, stroke_mm=None, vmax_mps=None, budget_kib: float 
     except RuleError as exc:
         raise ExportError(str(exc)) from None
     sets, peaks = [], {}
-    robust = RobustSpec() if cfg.designer == "ocp-robust" else None
     for t in tpis:
         plant = plants[t]
         ctrl = controller_at_tpi(cfg.controller, cfg.plant, t) if cfg.scale_controller else cfg.controller
+        family = [m.at_tpi(t) for m in cfg.family]         # as the sweep's cells hold them
         vmax = None if vmax_mps is None else vmax_mps / (plant.track_pitch_nm * 1e-9)
-        ls = LongSeekDesigner(plant, ctrl, cfg.imax, cfg.settle, robust,
-                              LongSeekSpec(vmax_track_s=vmax, stroke_track=strokes[t]))
+        ls = export_longseek(cfg.designer, plant, ctrl, cfg.imax, cfg.settle,
+                             LongSeekSpec(vmax_track_s=vmax, stroke_track=strokes[t]), family, cfg.drift)
         with tqdm(desc=f"export {t:g} TPI", unit="design", file=sys.stderr, disable=not progress) as bar:
-            ad = AnchorDesigner(export_designer(cfg.designer, plant, ctrl, cfg.imax, cfg.settle), plant, ctrl,
-                                cfg.settle, progress=bar)
+            ad = AnchorDesigner(export_designer(cfg.designer, plant, ctrl, cfg.imax, cfg.settle, family, cfg.drift),
+                                plant, ctrl, cfg.settle, progress=bar)
             try:
                 s = build_seek_set(ad, ls, strokes[t], F, cfg.imax, tpi=int(round(t)), settings=st)
             except RuleError as exc:
                 raise ExportError(str(exc)) from None
         tops = [c.k_hi for c in s.classes] + [c.k_lo for c in s.coasts] + [s.stroke]
-        pk = (play_linear(s, plant, ctrl, sorted(set(tops)), cfg.imax, cfg.settle) if plant.is_linear else None)
+        pk = play_rule(s, plant, ctrl, sorted(set(tops)), cfg.imax, cfg.settle) if plant.is_linear else None
         peak = None if pk is None else float(max(pk["peak_current_a"].max(), pk["peak_current_neg_a"].max()))
         s.meta.update(peak_current_a=peak, plant_hash=plant.hash(), controller_hash=ctrl.hash(),
                       stroke_mm=stroke_mm, table_bytes=s.table_bytes(), budget_bytes=st.budget_bytes)

@@ -131,8 +131,9 @@ def read_sweep_json(results_dir) -> tuple[Path, dict]:
         raise ExportError(f"{root / 'sweep.json'}: not valid JSON") from None
 
 
-def load_tables(results_dir) -> TableSet:
-    """The optimal profiles of a sweep results folder, quantised.
+def load_tables(results_dir, sweep_json: dict | None = None) -> TableSet:
+    """The optimal profiles of a sweep results folder, quantised (``sweep_json``: the folder's parsed
+    ``sweep.json`` when already read, :func:`read_sweep_json`).
 
     Raises
     ------
@@ -143,7 +144,7 @@ def load_tables(results_dir) -> TableSet:
     from seekopt import __version__
     from seekopt.design.profiles import Profile
     from seekopt.evaluate.sweep import cell_key, load_cells
-    root, cfg = read_sweep_json(results_dir)
+    root, cfg = (Path(results_dir), sweep_json) if sweep_json is not None else read_sweep_json(results_dir)
     cells = load_cells(root)
     profiles = []
     for tpi in cfg["tpis"]:

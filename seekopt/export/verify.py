@@ -6,9 +6,11 @@ the played seek's position and sub-step currents are convolutions of the fixed-p
 from the one simulator (:func:`seekopt.drive.simulator.closed_loop_responses`); the pre-seek hold current
 ``-bias_a`` cancels the bias exactly.  :func:`play_linear` does thousands of lengths in one batched FFT
 convolution; :func:`play_simulated` runs :func:`seekopt.drive.simulator.simulate_2dof` (via
-:func:`seekopt.design.metrics.evaluate_profile`) for a sample, and is the only path for a plant with
-nonlinear effects.  A negative seek plays the exact negation (the rule rounds ``|K|``), so its position
-error is the negation and only its current differs: both directions' peak currents are returned.
+:func:`seekopt.design.metrics.evaluate_profile`) for a sample, and is the only path for a plant whose loop
+does not superpose (:func:`seekopt.design.predict.superposes`: nonlinear effects, a pivot spring's rest
+offset); :func:`play_rule` picks the path.  A negative seek plays the exact negation (the rule rounds
+``|K|``), so on a superposing loop its position error is the negation and only its current differs: both
+directions' peak currents are returned.
 """
 from __future__ import annotations
 
@@ -17,7 +19,7 @@ from scipy.signal import fftconvolve
 
 from seekopt.export.classes import SeekSet
 
-__all__ = ["play_linear", "play_simulated", "played_profile", "DEFAULT_TAIL_SAMPLES"]
+__all__ = ["play_rule", "play_linear", "play_simulated", "played_profile", "DEFAULT_TAIL_SAMPLES"]
 
 #: Samples simulated after the longest seek of a batch (15 ms at 26.4 kHz; the metrics' default tail).
 DEFAULT_TAIL_SAMPLES = 396
@@ -36,7 +38,8 @@ def played_profile(s: SeekSet, tracks: int, imax: float, fs: float, settle: floa
 
 def play_linear(s: SeekSet, plant, controller, lengths, imax: float, settle: float = 0.1,
                 tail: int = DEFAULT_TAIL_SAMPLES, batch: int = 256) -> dict:
-    """Settle and peak current of the rule's seeks of ``lengths`` (positive) on ``plant``'s linear loop.
+    """Settle and peak current of the rule's seeks of ``lengths`` (positive) on ``plant``'s linear loop
+    (a plant whose loop superposes, :func:`seekopt.design.predict.superposes`; ValueError otherwise).
 
     Returns
     -------
@@ -45,9 +48,11 @@ def play_linear(s: SeekSet, plant, controller, lengths, imax: float, settle: flo
         ``peak_current_a`` (positive seek), ``peak_current_neg_a`` (negative seek).
     """
     from seekopt.design.metrics import settle_index
+    from seekopt.design.predict import superposes
     from seekopt.drive.simulator import closed_loop_responses
-    if not plant.is_linear:
-        raise ValueError("play_linear needs a plant without nonlinear effects; use play_simulated")
+    if not superposes(plant):
+        raise ValueError("play_linear needs a plant whose loop superposes (no nonlinear effects, no pivot rest "
+                         "offset); use play_simulated")
     lengths = np.asarray(lengths, dtype=np.int64)
     ns = np.array([s.n_samples(int(K)) for K in lengths])
     out = {"tracks": lengths, "n": ns, "settle_samples": np.zeros(len(lengths), int),
@@ -76,14 +81,33 @@ def play_linear(s: SeekSet, plant, controller, lengths, imax: float, settle: flo
     return out
 
 
-def play_simulated(s: SeekSet, plant, controller, lengths, imax: float, settle: float = 0.1) -> dict:
-    """As :func:`play_linear` (positive seeks only) with the full simulator on the full plant."""
+def play_simulated(s: SeekSet, plant, controller, lengths, imax: float, settle: float = 0.1,
+                   negative: bool = False) -> dict:
+    """As :func:`play_linear` with the full simulator on the full plant: positive seeks (``settle_samples``,
+    ``peak_current_a``) and, with ``negative``, also ``n`` and the negative seeks' ``peak_current_neg_a``
+    (each direction played on its own: a loop that does not superpose is not symmetric)."""
     from seekopt.design.metrics import evaluate_profile
     fs = float(controller.sample_rate_hz)
-    st, pk = [], []
+    st, pk, pk_neg = [], [], []
     for K in lengths:
+        horizon = (s.n_samples(int(K)) + DEFAULT_TAIL_SAMPLES) / fs
         m = evaluate_profile(plant, controller, played_profile(s, int(K), imax, fs, settle), settle=settle,
-                             horizon_s=(s.n_samples(int(K)) + DEFAULT_TAIL_SAMPLES) / fs)
+                             horizon_s=horizon)
         st.append(int(round(m.settle_time_s * fs)) if m.settled else -1)
         pk.append(m.peak_current_a)
-    return {"tracks": np.asarray(lengths), "settle_samples": np.array(st), "peak_current_a": np.array(pk)}
+        if negative:
+            pk_neg.append(evaluate_profile(plant, controller, played_profile(s, -int(K), imax, fs, settle),
+                                           settle=settle, horizon_s=horizon).peak_current_a)
+    out = {"tracks": np.asarray(lengths), "settle_samples": np.array(st), "peak_current_a": np.array(pk)}
+    if negative:
+        out.update(n=np.array([s.n_samples(int(K)) for K in lengths]), peak_current_neg_a=np.array(pk_neg))
+    return out
+
+
+def play_rule(s: SeekSet, plant, controller, lengths, imax: float, settle: float = 0.1) -> dict:
+    """:func:`play_linear` when ``plant``'s loop superposes (:func:`seekopt.design.predict.superposes`), else
+    :func:`play_simulated` in both directions: the same entries, each the one simulator's figure."""
+    from seekopt.design.predict import superposes
+    if superposes(plant):
+        return play_linear(s, plant, controller, lengths, imax, settle)
+    return play_simulated(s, plant, controller, lengths, imax, settle, negative=True)

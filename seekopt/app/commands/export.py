@@ -24,9 +24,10 @@ def cmd_export(args) -> int:
               "reference) -> " + ", ".join(map(str, paths)))
         return 0
     check_positive(args.budget_kib, "--budget-kib")
-    stroke_mm = playable.sweep_stroke_mm(src, args.stroke_mm, args.vmax_mps) if src.is_dir() else None
+    sweep = playable.read_sweep(src) if src.is_dir() else None        # sweep.json, read once
+    stroke_mm = playable.sweep_stroke_mm(src, args.stroke_mm, args.vmax_mps, sweep) if sweep else None
     with progress(args, f"quantising the tables of {args.results}"):
-        ts = load_tables(args.results)
+        ts = load_tables(args.results, None if sweep is None else sweep[1])
         paths = write_tables(ts, args.format, args.output)
     print(f"export: {len(ts.tables)} tables ({len(ts.tpis)} TPI x {len(ts.lengths)} lengths, "
           f"{ts.meta['ref_format']} reference) -> " + ", ".join(map(str, paths)))
@@ -35,7 +36,7 @@ def cmd_export(args) -> int:
               "exported; pass --stroke-mm for tables of every length")
         return 0
     rule = playable.build_rule(src, stroke_mm=args.stroke_mm, vmax_mps=args.vmax_mps, budget_kib=args.budget_kib,
-                               progress=not getattr(args, "quiet", False))
+                               progress=not getattr(args, "quiet", False), sweep=sweep)
     paths = playable.write_seek(rule, args.format, args.output)
     for s in rule.sets:
         pk = s.meta["peak_current_a"]
