@@ -155,6 +155,11 @@ class SeekProblem:
         Further guard bands ``(lo_hz, hi_hz)`` or ``(lo_hz, hi_hz, gain)``.
     check_robust : bool
         Also simulate each design on every plant of the robust set.
+    nominal_first : bool
+        Minimum seek-settle design over a plant set, lexicographic: the worst seek-settle time over the
+        set first, then, holding it, the nominal plant's (the nominal plant may settle before the set's
+        worst; :meth:`seekopt.design.designer.SeekDesigner._nominal_first`).  False: every plant's band
+        from the same sample (the worst case alone).
     solver : SolverSettings
     """
 
@@ -175,6 +180,7 @@ class SeekProblem:
     guard_notch_depth_db: float | None = 6.0
     guard_bands_hz: tuple = ()
     check_robust: bool = False
+    nominal_first: bool = True
     solver: SolverSettings = field(default_factory=SolverSettings)
 
     def __post_init__(self):

@@ -284,14 +284,15 @@ class SeekQP:
 
     # ------------------------------------------------------------------ per design
     def data(self, K: float, nseek: int, beta: float | None, gamma: float, hf_tol: float | None,
-             slew_a_per_s: float | None = None):
+             slew_a_per_s: float | None = None, nominal_from: int | None = None):
         """Numeric QP data for a seek of ``K`` tracks in ``nseek`` samples.
 
         ``beta``: settle-band fraction on ``k >= nseek`` (None: band rows free); ``gamma``: current
-        fraction of ``Imax``; ``hf_tol``: guard tolerance in bands.
+        fraction of ``Imax``; ``hf_tol``: guard tolerance in bands; ``nominal_from``: the nominal plant's
+        band rows from this sample on (at most ``nseek``; the set's other plants from ``nseek``).
         """
         aK = abs(K)
-        g, lba, uba, lbx, ubx = self.bounds(K, nseek, beta, gamma, hf_tol, slew_a_per_s)
+        g, lba, uba, lbx, ubx = self.bounds(K, nseek, beta, gamma, hf_tol, slew_a_per_s, nominal_from)
         H = self._dm["P0"] + aK * self._dm["P1"] + aK * aK * self._dm["P2"]
         A = self._dm["A0"] + aK * self._dm["A1"]
         return H, g, A, lba, uba, lbx, ubx
@@ -307,24 +308,27 @@ class SeekQP:
         return self._mat
 
     def numeric(self, K: float, nseek: int, beta: float | None, gamma: float, hf_tol: float | None,
-                slew_a_per_s: float | None = None):
+                slew_a_per_s: float | None = None, nominal_from: int | None = None):
         """:meth:`data` as numpy arrays ``(H, g, A, lba, uba, lbx, ubx)`` (no casadi copies)."""
         H, A = self.matrices(K)
-        g, lba, uba, lbx, ubx = self.bounds(K, nseek, beta, gamma, hf_tol, slew_a_per_s)
+        g, lba, uba, lbx, ubx = self.bounds(K, nseek, beta, gamma, hf_tol, slew_a_per_s, nominal_from)
         return H, g, A, lba, uba, lbx, ubx
 
     def bounds(self, K: float, nseek: int, beta: float | None, gamma: float, hf_tol: float | None,
-               slew_a_per_s: float | None = None):
+               slew_a_per_s: float | None = None, nominal_from: int | None = None):
         """``(g, lba, uba, lbx, ubx)`` (numpy) of :meth:`data`."""
         aK = abs(K)
         N, n = self.N, self.n
         if not 0 < nseek <= N:
             raise ValueError(f"nseek {nseek} outside 1..{N}")
+        n_nom = nseek if nominal_from is None else int(nominal_from)
+        if not 0 < n_nom <= nseek:
+            raise ValueError(f"nominal_from {nominal_from} outside 1..{nseek}")
         g = K * self._q1 + K * aK * self._q2
         c = self.c0 + K * self.c1
         lba = np.full(self.m, -np.inf); uba = np.full(self.m, np.inf)
         mk = self._masks
-        active = self._pes & (self.sample >= nseek)
+        active = self._pes & (self.sample >= np.where(self.plant_idx == 0, n_nom, nseek))
         if self.epigraph:
             hi, lo = active & mk["pes_hi"], active & mk["pes_lo"]
             uba[hi] = -c[hi]; lba[lo] = -c[lo]
