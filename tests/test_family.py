@@ -141,7 +141,9 @@ def test_family_design_holds_every_member_and_says_which_binds():
     fam = SeekDesigner(SeekProblem(nom, ctrl, 0.3, robust=None, family=members, **kw)).design(50.0)
     pred = fam.prediction
     assert pred.labels == ["nominal", "member 1", "member 2"]
-    N = fam.settle_samples
+    N = fam.set_settle_samples      # every plant of the set holds the band from here (the nominal from settle_samples)
+    assert fam.settle_samples <= N == fam.profile.seek_samples
+    assert pred.nominal.settle_time_s * FS <= fam.settle_samples + 1 + 1e-9
     for lab, m in pred.members():
         assert m.settle_time_s * FS <= N + 1 + 1e-9, lab
     assert pred.labels[pred.binding] in pred.labels and 0 <= pred.worst < 3

@@ -458,7 +458,7 @@ class SeekDesigner:
                             qp_status=stats.status,
                             build_time_s=sum(q.build_time_s for q in self._qps.values()),
                             fallback_solves=stats.fallback, unresolved_solves=len(stats.unresolved),
-                            prediction=pred, guard=guard)
+                            prediction=pred, guard=guard, set_settle_samples=n_set)
 
 
 def design_seek(plant: ModalPlant, controller, tracks: float, imax: float, settle: float = 0.1,
