@@ -107,14 +107,14 @@ def better_paper(plant, truth, ctrl, K) -> float:
                                 settle=BAND, k0_for_tbb=plant.k0).settle_time_s for kind in ("sine", "windowed_sine"))
 
 
-def family_study(ks, cache: Path, nominal_first: bool = True):
+def family_study(ks, cache: Path, options=None):
     ctrl = Controller.nss()
     truths = family_truths()
     ident = {name: identified(name, truths[name], seed, cache) for name, *_, seed in MEMBERS}
     room = ident["room"]
     # each member's drive calibrates its feedforward to its own identified gain
     members = {n: calibrated(truths[n], room.k0, ident[n].k0) for n in truths}
-    nf = {"nominal_first": nominal_first}
+    nf = dict(options or {})
     designs = {"room plant, default drift": SeekProblem(room, ctrl, IMAX, BAND, robust=Drift(), **nf),
                "family (3 identified plants)": SeekProblem(room, ctrl, IMAX, BAND, robust=Drift(),
                                                            family=[ident["cold"], ident["hot"]], **nf),
@@ -165,7 +165,7 @@ def family_study(ks, cache: Path, nominal_first: bool = True):
     return rows, pred_rows, ident_rows, summary
 
 
-def nss_study(cache: Path, ks=(200.0, 1000.0), nominal_first: bool = True):
+def nss_study(cache: Path, ks=(200.0, 1000.0), options=None):
     ctrl = Controller.nss()
     truth = default_truth_plant()
     path = cache / "nss_default.json"
@@ -184,7 +184,7 @@ def nss_study(cache: Path, ks=(200.0, 1000.0), nominal_first: bool = True):
                 "nominal (no robust set)": None}
     rows, out = [], {}
     for label, rob in variants.items():
-        des = SeekDesigner(SeekProblem(p, ctrl, IMAX, BAND, robust=rob, nominal_first=nominal_first))
+        des = SeekDesigner(SeekProblem(p, ctrl, IMAX, BAND, robust=rob, **(options or {})))
         for K in ks:
             t0 = time.perf_counter()
             res = des.design(K)
@@ -204,7 +204,8 @@ def main(argv=None) -> int:
     ap.add_argument("--cache", default="/tmp/seekopt_operating_range")
     ap.add_argument("--no-readme", action="store_true")
     ap.add_argument("--before-after", action="store_true",
-                    help="also design with nominal_first=False (every plant's band from one sample) and tabulate both")
+                    help="also design as before this change (inputs end at the settle sample, every plant's band "
+                         "from one sample: input_tail_s=0, nominal_first=False) and tabulate both")
     a = ap.parse_args(argv)
     cache = Path(a.cache)
     cache.mkdir(parents=True, exist_ok=True)
@@ -212,8 +213,8 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     rows, pred, ident, summary = family_study(ks, cache)
     nss_rows, nss = nss_study(cache)
-    before = (family_study(ks, cache, nominal_first=False)[3], nss_study(cache, nominal_first=False)[1]) \
-        if a.before_after else None
+    old = {"input_tail_s": 0.0, "nominal_first": False}
+    before = (family_study(ks, cache, old)[3], nss_study(cache, options=old)[1]) if a.before_after else None
     names = [n for n, *_ in MEMBERS]
     text = [
         "### Measured (`studies/operating_range.py`)",
@@ -260,10 +261,13 @@ def main(argv=None) -> int:
         "",
     ]
     if before is not None:
-        text += ["Before / after the lexicographic design (`SeekProblem.nominal_first`: the set's worst seek-settle "
-                 "time first, then, holding it, the nominal plant's; before = every plant's band from one sample), "
-                 "same identified plants, one run: T_settle / T_bb on the room member, worst over the members of "
-                 "(T_settle / better paper profile), predicted worst over the set / T_bb:", "",
+        text += ["Before / after (same identified plants, one run). Before: the inputs end at the settle sample and "
+                 "every plant of the set holds the band from that sample (`input_tail_s=0, nominal_first=False`). "
+                 "After: the feedforward and reference may go on 0.3 ms after the settle sample "
+                 "(`SeekProblem.input_tail_s`) and the design is lexicographic (`nominal_first`: the set's worst "
+                 "seek-settle time first, then, holding it, the nominal plant's). T_settle / T_bb on the room "
+                 "member, worst over the members of (T_settle / better paper profile), predicted worst over the "
+                 "set / T_bb:", "",
                  md_table(["design", "K", "room /T_bb before", "after", "worst /paper before", "after",
                            "pred worst /T_bb before", "after"],
                           [[lab, f"{K:g}"] + [f"{d[(lab, K)][key]:.2f}" if key != "ratio" else

@@ -94,6 +94,9 @@ class SeekDesigner:
         self.guard_bands = _guard.problem_bands(p)     # Nyquist, controller notches, blind bands
         self.guard_curve = _guard.plant_gain_curve(p.plant)   # what the identification could have seen
         self.slew = p.slew_a_per_s
+        # minimum seek-settle designs: the inputs may go on this many samples after the settle sample
+        # (objective (a) and the shortest-feasible probe keep the seek length they are given)
+        self.input_tail = max(int(round(p.input_tail_s * self.fs)), 0)
         self.check_robust = p.check_robust
         self.max_samples = int(p.solver.max_samples)
         self.thin_above, self.thin_stride = p.solver.thin_above_samples, p.solver.thin_stride
@@ -150,7 +153,8 @@ class SeekDesigner:
             self._qps[key] = _qp.SeekQP(
                 maps, nmax, H, self.imax, self.settle, self.fs, band_plants,
                 lambda n, m: SolverChain(n, m, s.chain, s.options, builds=self._count_solver),
-                epigraph=epigraph, R=R, hf=hf, slew=self.slew, stride=self._stride(nmax))
+                epigraph=epigraph, R=R, hf=hf, slew=self.slew, stride=self._stride(nmax),
+                input_tail=0 if epigraph else self.input_tail)
             self.builds += 1
         return self._qps[key]
 
@@ -404,8 +408,9 @@ class SeekDesigner:
 
     # ------------------------------------------------------------------ verification
     def _finish(self, qp, sol, K, N, stats: SolveStats, objective, strict, settle_n=None) -> DesignResult:
-        """Verify and package the design of ``N`` seek samples; ``settle_n`` (default ``N``): the sample the
-        nominal plant's band holds from (:meth:`_nominal_first`)."""
+        """Verify and package the design whose set holds the band from sample ``N`` on (its inputs are
+        ``N`` plus the structure's ``input_tail`` samples long); ``settle_n`` (default ``N``): the sample the
+        nominal plant's band holds from (:meth:`_nominal_first`), checked by the simulator when ``strict``."""
         n_set = N
         N = N if settle_n is None else int(settle_n)
         u, r = qp.unpack(sol.x, K, n_set)
@@ -421,11 +426,11 @@ class SeekDesigner:
         if self.ignored_effects:
             meta["effects_not_in_design"] = ";".join(self.ignored_effects)
         if r is not None:   # jointly designed reference; one closing sample shows the hold (u = 0, r = K)
-            prof = Profile(np.r_[u, 0.0], np.r_[r, K], self.fs, K, self.imax, self.settle, "optimal", n_set, meta)
+            prof = Profile(np.r_[u, 0.0], np.r_[r, K], self.fs, K, self.imax, self.settle, "optimal", len(u), meta)
         else:
             prof = finish_profile(u, K, self.fs, self.imax, self._reference_model(), "optimal", self.settle,
                                   meta=meta)
-            prof.seek_samples = n_set
+            prof.seek_samples = len(u)
         # the one simulator, played once: a guard on a loop the maps cannot play (it does not superpose)
         # reads this play's sub-step currents
         sub = bool(self.guard_bands) and (self._maps is None or not superposes(self.plant))

@@ -125,12 +125,16 @@ def set_row_samples(nmax: int, horizon: int, stride: int = 1) -> np.ndarray:
 
 
 class SeekQP:
-    """The condensed seek-design QP for seeks of at most ``nmax`` samples (one size class).
+    """The condensed seek-design QP for seeks that settle within at most ``nmax`` samples (one size class).
 
     Scaled decision vector ``x = [v, q, t]`` (O(1) numbers)::
 
-        v_k = u_ff(k) / Imax,  q_k = (r(k) - K) / |K|   (k < nmax; pinned to 0 for k >= N),
+        v_k = u_ff(k) / Imax,  q_k = (r(k) - K) / |K|   (k < nmax + input_tail; pinned to 0 for k >= N + input_tail),
         t   = worst settle-band residual / band          (epigraph variant only)
+
+    ``input_tail``: samples the feedforward and reference may go on after the settle sample ``N`` (the
+    seek-settle time counts ``|PES|`` only: the inputs may keep shaping the loop while the head is
+    inside the band); 0: they end at ``N``.
 
     With ``reference="model"`` (or ``"rigid"``) there is no ``q``: ``r = R u_ff`` with ``R`` the
     Toeplitz map of the reference model's open-loop impulse response.
@@ -153,17 +157,22 @@ class SeekQP:
     def __init__(self, maps: list, nmax: int, horizon: int, imax: float, band: float, fs: float,
                  band_plants: list, solver, *, epigraph: bool = False, R=None, hf=None, slew=None,
                  rho: float = 1e-2, rho_q: float = 1e-3, w_e: float = 1.0, w_t: float = 10.0,
-                 eps: float = 1e-9, current_extra: int = 40, stride: int = 1):
+                 eps: float = 1e-9, current_extra: int = 40, stride: int = 1, input_tail: int = 0):
         t_build = time.perf_counter()
-        N, Hn, L = int(nmax), int(horizon), maps[0].L
-        self.N, self.horizon, self.imax, self.band, self.fs = N, Hn, float(imax), float(band), float(fs)
+        Ns, Hn, L = int(nmax), int(horizon), maps[0].L
+        self.input_tail = int(input_tail)
+        N = Ns + self.input_tail            # input samples (the rows below use N input columns)
+        if N > Hn:
+            raise ValueError(f"input samples {N} beyond the horizon {Hn}")
+        self.N, self.nin = Ns, N
+        self.horizon, self.imax, self.band, self.fs = Hn, float(imax), float(band), float(fs)
         self.free_ref = R is None
         self.epigraph = bool(epigraph)
         nq = N if self.free_ref else 0
         self.nv, self.nq, self.nt = N, nq, int(epigraph)
         n = N + nq + self.nt
         self.n = n
-        ks = pes_row_samples(N, Hn)
+        ks = pes_row_samples(Ns, Hn)
         self.pes_k = ks
         ncur = min(Hn, N + current_extra)
         A0, A1, c0, c1, kinds = [], [], [], [], []    # offsets: c = c0 + K c1 (band / Imax units)
@@ -177,7 +186,7 @@ class SeekQP:
 
         if not self.free_ref:
             Rfull = np.asarray(R, float)[:Hn, :N]
-        ks_other = set_row_samples(N, Hn, stride)     # thinned for the other plants (pairs of adjacent samples)
+        ks_other = set_row_samples(Ns, Hn, stride)     # thinned for the other plants (pairs of adjacent samples)
         for i, m in enumerate(maps):
             ksi = ks if i == 0 else ks_other
             Tyu, Tyr, syr = m.position_rows(ksi, N if self.free_ref else Hn)
@@ -248,7 +257,7 @@ class SeekQP:
         if epigraph:
             P[-1, -1] += 2 * w_t
         P += 2 * eps * np.eye(n)
-        kt = np.arange(N, Hn)
+        kt = np.arange(Ns, Hn)
         E0, E1, e0, e1 = [], [], [], []
         for m in maps:
             Tyu, Tyr, syr = m.position_rows(kt, N if self.free_ref else Hn)
@@ -321,6 +330,7 @@ class SeekQP:
         N, n = self.N, self.n
         if not 0 < nseek <= N:
             raise ValueError(f"nseek {nseek} outside 1..{N}")
+        nu = nseek + self.input_tail        # input samples
         n_nom = nseek if nominal_from is None else int(nominal_from)
         if not 0 < n_nom <= nseek:
             raise ValueError(f"nominal_from {nominal_from} outside 1..{nseek}")
@@ -346,9 +356,9 @@ class SeekQP:
             lim = slew_a_per_s / (self.fs * self.imax)
             lba[sl] = -lim; uba[sl] = lim
         lbx = np.zeros(n); ubx = np.zeros(n)
-        lbx[:nseek], ubx[:nseek] = -1.0, 1.0
+        lbx[:nu], ubx[:nu] = -1.0, 1.0
         if self.nq:
-            lbx[N:N + nseek], ubx[N:N + nseek] = -2.0, 2.0
+            lbx[self.nin:self.nin + nu], ubx[self.nin:self.nin + nu] = -2.0, 2.0
         if self.nt:
             lbx[-1], ubx[-1] = 0.0, np.inf
         return g, lba, uba, lbx, ubx
@@ -361,9 +371,10 @@ class SeekQP:
         return constraint_violation(A, x, lba, uba, lbx, ubx)
 
     def unpack(self, x: np.ndarray, K: float, nseek: int):
-        """``(u_ff [A], r [track, relative] or None)`` over ``nseek`` samples."""
-        u = self.imax * x[:nseek]
-        r = K + abs(K) * x[self.N:self.N + nseek] if self.nq else None
+        """``(u_ff [A], r [track, relative] or None)`` over the ``nseek + input_tail`` input samples."""
+        nu = nseek + self.input_tail
+        u = self.imax * x[:nu]
+        r = K + abs(K) * x[self.nin:self.nin + nu] if self.nq else None
         return u, r
 
     def residual(self, x: np.ndarray, K: float, nseek: int, plants=None) -> float:
