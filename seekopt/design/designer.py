@@ -146,7 +146,9 @@ class SeekDesigner:
                 imp = np.zeros(H); imp[0] = 1.0
                 hm = reference_from_model(self._reference_model(), imp, self.fs, H)
                 R = _qp.toeplitz_rows(hm, np.arange(H), H)
-            hf = _guard.design_guard_rows(self.guard_bands, self.plant.k0, self.fs, nmax, H, maps[0],
+            in_tail = 0 if epigraph else self.input_tail
+            # the grid follows the inputs' length: their spectrum's lobes are fs / (nmax + in_tail) wide
+            hf = _guard.design_guard_rows(self.guard_bands, self.plant.k0, self.fs, nmax + in_tail, H, maps[0],
                                           curve=self.guard_curve)
             band_plants = range(len(self.plants)) if self.objective_kind == "worst" else [0]
             s = self.settings
@@ -154,7 +156,7 @@ class SeekDesigner:
                 maps, nmax, H, self.imax, self.settle, self.fs, band_plants,
                 lambda n, m: SolverChain(n, m, s.chain, s.options, builds=self._count_solver),
                 epigraph=epigraph, R=R, hf=hf, slew=self.slew, stride=self._stride(nmax),
-                input_tail=0 if epigraph else self.input_tail)
+                input_tail=in_tail)
             self.builds += 1
         return self._qps[key]
 
