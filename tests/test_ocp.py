@@ -337,7 +337,7 @@ def test_iteration_limit_of_real_daqp_is_retried(setup):
 def test_working_set_option_designs_as_the_full_qp(setup):
     """SolverSettings(working_set=True): the same optimum on a working set of the rows."""
     truth, ctrl, design = setup
-    full = SeekDesigner(SeekProblem(design, ctrl, IMAX, robust="n=2"))
+    full = SeekDesigner(SeekProblem(design, ctrl, IMAX, robust="n=2", solver=SolverSettings(working_set=False)))
     ws = SeekDesigner(SeekProblem(design, ctrl, IMAX, robust="n=2", solver=SolverSettings(working_set=True)))
     for K in (20.0, 150.0):
         a, b = full.design(K), ws.design(K)

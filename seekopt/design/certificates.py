@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["proves_infeasible", "farkas_certificate"]
+__all__ = ["proves_infeasible", "farkas_certificate", "phase1_lp"]
 
 
 def proves_infeasible(A: np.ndarray, lba, uba, lbx, ubx, lam_a, rel_tol: float = 1e-9) -> bool:
@@ -47,7 +47,16 @@ def proves_infeasible(A: np.ndarray, lba, uba, lbx, ubx, lam_a, rel_tol: float =
 
 
 def farkas_certificate(A: np.ndarray, lba, uba, lbx, ubx):
-    """Row multipliers proving ``lba <= A x <= uba, lbx <= x <= ubx`` infeasible, or ``None``.
+    """Row multipliers proving ``lba <= A x <= uba, lbx <= x <= ubx`` infeasible, or ``None``
+    (:func:`phase1_lp`'s verified multipliers)."""
+    return phase1_lp(A, lba, uba, lbx, ubx)[0]
+
+
+def phase1_lp(A: np.ndarray, lba, uba, lbx, ubx):
+    """``(lam, x, t)``: verified Farkas multipliers ``lam`` proving ``lba <= A x <= uba, lbx <= x <= ubx``
+    infeasible (or ``None``), and the phase-1 LP's point ``x`` and its largest row violation ``t``
+    (``None, inf`` when the LP gave none): a cutting-plane search for a certificate adds the rows of
+    a larger set that ``x`` violates by more than ``t``.
 
     The phase-1 LP ``min t  s.t.  A x - t <= uba,  -A x - t <= -lba,  lbx <= x <= ubx,  t >= 0``
     (HiGHS through :func:`scipy.optimize.linprog`) has a positive optimum exactly when the rows and
@@ -63,7 +72,7 @@ def farkas_certificate(A: np.ndarray, lba, uba, lbx, ubx):
     m, n = A.shape
     up, lo = np.flatnonzero(np.isfinite(uba)), np.flatnonzero(np.isfinite(lba))
     if not (up.size + lo.size):
-        return None
+        return None, None, float("inf")
     A_ub = np.zeros((up.size + lo.size, n + 1))
     A_ub[:up.size, :n], A_ub[up.size:, :n] = A[up], -A[lo]
     A_ub[:, n] = -1.0
@@ -75,12 +84,15 @@ def farkas_certificate(A: np.ndarray, lba, uba, lbx, ubx):
     try:
         res = linprog(c, A_ub=A_ub, b_ub=b_ub, bounds=bounds, method="highs")
     except ValueError:
-        return None
-    if res.status != 0 or not res.fun > 0 or getattr(res, "ineqlin", None) is None:
-        return None
+        return None, None, float("inf")
+    if res.status != 0 or getattr(res, "x", None) is None:
+        return None, None, float("inf")
+    x, t = np.asarray(res.x[:n], dtype=float), float(res.fun)
+    if not t > 0 or getattr(res, "ineqlin", None) is None:
+        return None, x, t
     mu = -np.asarray(res.ineqlin.marginals, dtype=float)        # HiGHS: d(objective)/d(b_ub) <= 0
     mu = np.maximum(mu, 0.0)
     lam = np.zeros(m)
     np.add.at(lam, up, mu[:up.size])
     np.subtract.at(lam, lo, mu[up.size:])
-    return lam if proves_infeasible(A, lba, uba, lbx, ubx, lam) else None
+    return (lam if proves_infeasible(A, lba, uba, lbx, ubx, lam) else None), x, t

@@ -32,10 +32,11 @@ from __future__ import annotations
 
 import contextlib
 import math
+import sys
 from collections import Counter
 
 import numpy as np
-from threadpoolctl import threadpool_limits
+from threadpoolctl import ThreadpoolController
 
 from identification.model.plant import ModalPlant
 
@@ -59,6 +60,22 @@ __all__ = ["DesignInfeasible", "DesignError", "DesignResult", "SeekDesigner", "d
 #: CPU; a 3-plant drift set at K = 1000: 3 s against 12.7 s CPU, where daqp failed on the whole QP and the
 #: fallback solver took 11 s).
 WORKING_SET_MIN_ROWS = 2500
+
+#: Samples of closed-loop response computed beyond the first structure's need: the size classes up to
+#: 128 samples then share the first map set (a rebuild re-simulates every plant of the set, ~0.4 s for
+#: 22 plants, where the headroom costs ~0.07 s once; the responses' first samples are the same).
+MAP_HEADROOM = 128
+
+_POOLS: list = [None, -1]      # ThreadpoolController, len(sys.modules) when it was made
+
+
+def _blas_pools() -> ThreadpoolController:
+    """The process's thread pools (threadpoolctl), found once: ``threadpool_limits`` scans the loaded
+    libraries (``/proc/self/maps``) on every call, 5 ms of a 20-50 ms nominal design.  Scanned again
+    when modules have been imported since (a new extension may bring its own BLAS)."""
+    if _POOLS[0] is None or _POOLS[1] != len(sys.modules):
+        _POOLS[:] = [ThreadpoolController(), len(sys.modules)]
+    return _POOLS[0]
 
 
 class SeekDesigner:
@@ -140,7 +157,8 @@ class SeekDesigner:
         key = (nmax, epigraph)
         if key not in self._qps:
             H = nmax + self.tail
-            maps = self._loop_maps(nmax + max(self.tail, self.check_tail))   # long enough for the checks too
+            need = nmax + max(self.tail, self.check_tail)     # long enough for the checks too
+            maps = self._loop_maps(need + (MAP_HEADROOM if self._maps is None else 0))
             R = None
             if self.reference != "free":
                 imp = np.zeros(H); imp[0] = 1.0
@@ -189,8 +207,9 @@ class SeekDesigner:
         def check(x, A=None):       # never trust a status alone: re-check the answer against the data
             viol = qp.violation(x, K, *bounds[1:], A=A)
             return f"constraint violation {viol:.2g}" if viol > tol else ""
-        if self.settings.working_set and (len(self.plants) > 1 or qp.m >= WORKING_SET_MIN_ROWS):
-            sol = self._working_set(qp).solve(*args[:-1], x0=warm, check=check, confirm=confirm,
+        if self.settings.working_set:     # rows screened on a plant set and big structures, else all rows
+            screen = len(self.plants) > 1 or qp.m >= WORKING_SET_MIN_ROWS
+            sol = self._working_set(qp).solve(*args[:-1], x0=warm, check=check, confirm=confirm, screen=screen,
                                               nominal_from=nominal_from)
             if getattr(sol, "unconfirmed", False):
                 stats.unconfirmed.add((id(qp), n))
@@ -259,7 +278,7 @@ class SeekDesigner:
     def _blas(self):
         """BLAS thread limit for a design (:attr:`SolverSettings.blas_threads`)."""
         n = self.settings.blas_threads
-        return threadpool_limits(limits=int(n), user_api="blas") if n else contextlib.nullcontext()
+        return _blas_pools().limit(limits=int(n), user_api="blas") if n else contextlib.nullcontext()
 
     def design(self, tracks: float, seek_samples: int | None = None) -> DesignResult:
         """Design the seek of ``tracks`` tracks.
@@ -336,25 +355,35 @@ class SeekDesigner:
     def _predicted_search(self, K, n_rigid, first, lo, stats):
         """Search from the predicted length (:meth:`_predict`): in the size class the old scan would end
         in, probe the predicted length and its neighbour, gallop (steps 1, 2, 4, ...) towards the
-        boundary, then bisect.  Returns ``(qp, class, N, answer)`` or None (no prediction, or the
-        class holds no feasible length: the class scan decides)."""
+        boundary, then bisect.  When the class holds no feasible length, its longest seek is solved
+        with ``confirm=True``: a proof moves the search on to the next class (from the length after
+        it, as the scan would end there), anything else returns None and the class scan decides.
+        Returns ``(qp, class, N, answer)`` or None (no prediction: the scan decides)."""
         n_pred = self._predict(n_rigid)
         if n_pred is None:
             return None
         classes = self._classes(first)
         c = next((x for x in classes if x >= n_pred), classes[-1])
+        went_down = False
         while True:
             qp = self._structure(c, False)
             found = gallop_length(self._probe(qp, K, stats), lo, min(max(n_pred, lo + 1), c), c)
-            if found is None:
-                return None     # nothing in this class: the class scan goes on from here
+            if found is None:   # nothing in this class (search steps): is its longest seek proven infeasible?
+                later = [x for x in classes if x > c]
+                if went_down or not later or c <= lo:
+                    return None
+                top = self._solve(qp, K, c, self.beta, stats)
+                if not top.infeasible:
+                    return None     # feasible after all, or undecided: the class scan decides
+                lo, c, n_pred = c, later[0], c + 1
+                continue
             lo_c, hi, best = found
             hi, best = self._bisect(qp, K, lo_c, hi, best, stats, floor=lo)
             # the scan takes the first class whose longest seek is feasible: a smaller class that holds
             # this length is that class (re-searched there, from this length)
             prev = [x for x in classes if x < c]
             if prev and hi <= prev[-1] and prev[-1] >= first:
-                c, n_pred = prev[-1], hi
+                c, n_pred, went_down = prev[-1], hi, True
                 continue
             return qp, c, hi, best
 

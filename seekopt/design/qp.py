@@ -124,6 +124,24 @@ def set_row_samples(nmax: int, horizon: int, stride: int = 1) -> np.ndarray:
     return np.unique(np.r_[near[(near % (2 * stride)) < 2] if stride > 1 else near, ks[ks >= nmax + 32]]).astype(int)
 
 
+def _assemble(blocks, n: int, N: int):
+    """``(A0, A1)``: row blocks ``(a_v, a_q, t)`` placed into two ``(rows, n)`` arrays -- ``a_v`` on the
+    ``N`` feedforward columns and ``t`` (a number) on the epigraph column of ``A0``, ``a_q`` on the
+    reference columns ``N..`` of ``A1`` (one allocation each, no full-width copies per block)."""
+    m = sum(v.shape[0] for v, _, _ in blocks)
+    A0, A1 = np.zeros((m, n)), np.zeros((m, n))
+    r = 0
+    for v, q, t in blocks:
+        k = v.shape[0]
+        A0[r:r + k, :N] = v
+        if q is not None:
+            A1[r:r + k, N:N + q.shape[1]] = q
+        if t is not None:
+            A0[r:r + k, -1] = t
+        r += k
+    return A0, A1
+
+
 class SeekQP:
     """The condensed seek-design QP for seeks that settle within at most ``nmax`` samples (one size class).
 
@@ -175,14 +193,7 @@ class SeekQP:
         ks = pes_row_samples(Ns, Hn)
         self.pes_k = ks
         ncur = min(Hn, N + current_extra)
-        A0, A1, c0, c1, kinds = [], [], [], [], []    # offsets: c = c0 + K c1 (band / Imax units)
-
-        def cols(a_v, a_q):
-            out0 = np.zeros((a_v.shape[0], n)); out1 = np.zeros((a_v.shape[0], n))
-            out0[:, :N] = a_v
-            if a_q is not None:
-                out1[:, N:N + nq] = a_q
-            return out0, out1
+        blocks, c0, c1, kinds = [], [], [], []    # offsets: c = c0 + K c1 (band / Imax units)
 
         if not self.free_ref:
             Rfull = np.asarray(R, float)[:Hn, :N]
@@ -191,28 +202,25 @@ class SeekQP:
             ksi = ks if i == 0 else ks_other
             Tyu, Tyr, syr = m.position_rows(ksi, N if self.free_ref else Hn)
             if self.free_ref:
-                a0, a1 = cols(imax * Tyu / band, Tyr / band)
+                av, aq = imax * Tyu / band, Tyr / band
                 off0, off1 = np.zeros(len(ksi)), (syr - 1.0) / band
             else:
-                a0, a1 = cols(imax * (Tyu[:, :N] + Tyr @ Rfull) / band, None)
+                av, aq = imax * (Tyu[:, :N] + Tyr @ Rfull) / band, None
                 off0, off1 = np.zeros(len(ksi)), -np.ones(len(ksi)) / band
             reps = ((-1.0, "pes_hi"), (1.0, "pes_lo")) if epigraph else ((0.0, "pes"),)
             for sgn, kind in reps:
-                b0 = a0.copy()
-                if epigraph:
-                    b0[:, -1] = sgn
-                A0.append(b0); A1.append(a1); c0.append(off0); c1.append(off1)
+                blocks.append((av, aq, sgn if epigraph else None)); c0.append(off0); c1.append(off1)
                 kinds += [(kind, i, int(k)) for k in ksi]
         for i, m in enumerate(maps):   # nominal: seek + 40 samples; other plants: seek + 8 (never thinned)
             Tiu, Tir, sir = m.current_rows(ncur if i == 0 else min(Hn, N + 8), N if self.free_ref else Hn)
             if self.free_ref:
-                a0, a1 = cols(Tiu, Tir / imax)
+                av, aq = Tiu, Tir / imax
                 off0, off1 = np.full(len(sir), m.hold_a / imax), sir / imax
             else:
-                a0, a1 = cols(Tiu[:, :N] + Tir @ Rfull, None)
+                av, aq = Tiu[:, :N] + Tir @ Rfull, None
                 off0, off1 = np.full(Tiu.shape[0], m.hold_a / imax), np.zeros(Tiu.shape[0])
-            A0.append(a0); A1.append(a1); c0.append(off0); c1.append(off1)
-            kinds += [("cur", i, j) for j in range(a0.shape[0])]
+            blocks.append((av, aq, None)); c0.append(off0); c1.append(off1)
+            kinds += [("cur", i, j) for j in range(av.shape[0])]
         if hf is not None:     # hf = (G, freqs): rows on the nominal plant's sub-step currents
             G = hf[0]
             m = maps[0]
@@ -220,30 +228,29 @@ class SeekQP:
             # the hold current -bias_a has been on since long before the seek: it leaves no residual in
             # a mode (over the finite horizon it would look like a step and bias the guard)
             if self.free_ref:
-                a0, a1 = cols(imax * G @ Tiu / band, G @ Tir / band)
+                av, aq = imax * G @ Tiu / band, G @ Tir / band
                 off0, off1 = np.zeros(G.shape[0]), G @ sir / band
             else:
-                a0, a1 = cols(imax * G @ (Tiu[:, :N] + Tir @ Rfull) / band, None)
+                av, aq = imax * G @ (Tiu[:, :N] + Tir @ Rfull) / band, None
                 off0, off1 = np.zeros(G.shape[0]), np.zeros(G.shape[0])
-            A0.append(a0); A1.append(a1); c0.append(off0); c1.append(off1)
+            blocks.append((av, aq, None)); c0.append(off0); c1.append(off1)
             kinds += [("hf", 0, j) for j in range(G.shape[0])]
         M = rigid_endpoint_matrix(N, maps[0].k0, 1.0 / fs)
         self.M = M
         # rows scaled by the bucket's reach: s_pos = k0 Ts^2 Imax N^2 / 4, s_vel = k0 Ts^2 Imax N
         self.s_pos = maps[0].k0 * imax * N * N / (4 * fs * fs)
         self.s_vel = maps[0].k0 * imax * N / (fs * fs)
-        a0 = np.zeros((2, n)); a0[0, :N] = M[0] * imax / self.s_pos; a0[1, :N] = M[1] * imax / self.s_vel
-        A0.append(a0); A1.append(np.zeros((2, n))); c0.append(np.zeros(2)); c1.append(np.zeros(2))
+        av = np.zeros((2, N)); av[0] = M[0] * imax / self.s_pos; av[1] = M[1] * imax / self.s_vel
+        blocks.append((av, None, None)); c0.append(np.zeros(2)); c1.append(np.zeros(2))
         kinds += [("rigid", 0, 0), ("rigid", 0, 1)]
         if slew is not None:
             D = np.eye(N + 1, N) - np.eye(N + 1, N, -1)
-            a0 = np.zeros((N + 1, n)); a0[:, :N] = D
-            A0.append(a0); A1.append(np.zeros((N + 1, n))); c0.append(np.zeros(N + 1)); c1.append(np.zeros(N + 1))
+            blocks.append((D, None, None)); c0.append(np.zeros(N + 1)); c1.append(np.zeros(N + 1))
             kinds += [("slew", 0, j) for j in range(N + 1)]
         self.kind = np.array([k[0] for k in kinds])
         self.plant_idx = np.array([k[1] for k in kinds])
         self.sample = np.array([k[2] for k in kinds])
-        self.A0, self.A1 = np.vstack(A0), np.vstack(A1)
+        self.A0, self.A1 = _assemble(blocks, n, N)
         self.c0, self.c1 = np.concatenate(c0), np.concatenate(c1)
         self.m = self.A0.shape[0]
         self.band_plants = set(band_plants)
@@ -258,19 +265,30 @@ class SeekQP:
             P[-1, -1] += 2 * w_t
         P += 2 * eps * np.eye(n)
         kt = np.arange(Ns, Hn)
-        E0, E1, e0, e1 = [], [], [], []
+        eblocks, e1 = [], []
         for m in maps:
             Tyu, Tyr, syr = m.position_rows(kt, N if self.free_ref else Hn)
-            a0, a1 = (cols(imax * Tyu / band, Tyr / band) if self.free_ref
-                      else cols(imax * (Tyu[:, :N] + Tyr @ Rfull) / band, None))
-            E0.append(a0); E1.append(a1)
+            eblocks.append((imax * Tyu / band, Tyr / band, None) if self.free_ref
+                           else (imax * (Tyu[:, :N] + Tyr @ Rfull) / band, None, None))
             e1.append((syr - 1.0) / band if self.free_ref else -np.ones(len(kt)) / band)
-        E0, E1, e1 = np.vstack(E0), np.vstack(E1), np.concatenate(e1)
+        (E0, E1), e1 = _assemble(eblocks, n, N), np.concatenate(e1)
         w = 2 * w_e / E0.shape[0]
-        self._P0, self._P1, self._P2 = P + w * E0.T @ E0, w * (E0.T @ E1 + E1.T @ E0), w * E1.T @ E1
-        self._q1, self._q2 = w * E0.T @ e1, w * E1.T @ e1   # g = K q1 + K|K| q2
+        # products on the nonzero blocks only (E0 lives on the feedforward columns, E1 on the reference
+        # columns): a quarter of the full-width products' work, the same numbers
+        v, q = slice(0, N), slice(N, N + nq)
+        E0v, E1q = E0[:, v], E1[:, q]
+        self._P0, self._P1, self._P2 = P.copy(), np.zeros((n, n)), np.zeros((n, n))
+        self._q1, self._q2 = np.zeros(n), np.zeros(n)       # g = K q1 + K|K| q2
+        self._P0[v, v] += (w * E0v.T) @ E0v
+        self._q1[v] = (w * E0v.T) @ e1
+        if nq:
+            self._P1[v, q] = w * (E0v.T @ E1q)
+            self._P1[q, v] = w * (E1q.T @ E0v)
+            self._P2[q, q] = (w * E1q.T) @ E1q
+            self._q2[q] = (w * E1q.T) @ e1
         self._dm_cache = None      # casadi copies of the full matrices, made on first full solve
         self._mat_K, self._mat = None, None      # (H, A) of the last |K| (matrices())
+        self._abs_A = None                       # |A| of the last |K| (violation())
         self._make_solver, self._solver = solver, None
         # row masks of bounds() (computed once)
         self._pes = np.isin(self.kind, ("pes", "pes_hi", "pes_lo")) & np.isin(self.plant_idx, list(self.band_plants))
@@ -313,7 +331,7 @@ class SeekQP:
         aK = abs(K)
         if self._mat_K != aK:
             self._mat = (self._P0 + aK * self._P1 + aK * aK * self._P2, self.A0 + aK * self.A1)
-            self._mat_K = aK
+            self._mat_K, self._abs_A = aK, None
         return self._mat
 
     def numeric(self, K: float, nseek: int, beta: float | None, gamma: float, hf_tol: float | None,
@@ -367,7 +385,11 @@ class SeekQP:
         """Largest constraint violation of ``x`` relative to the size of the terms summed in each
         row (``max(1, sum_j |a_ij x_j|)``: the cancellation level) -- re-checks a solver's answer.
         ``A``: the constraint matrix at ``K`` when already at hand."""
-        A = self.A0 + abs(K) * self.A1 if A is None else A
+        if A is None or (self._mat_K == abs(K) and A is self._mat[1]):
+            A = self.matrices(K)[1]         # the kept matrix and its |A| (one copy per seek length)
+            if self._abs_A is None:
+                self._abs_A = np.abs(A)
+            return constraint_violation(A, x, lba, uba, lbx, ubx, abs_A=self._abs_A)
         return constraint_violation(A, x, lba, uba, lbx, ubx)
 
     def unpack(self, x: np.ndarray, K: float, nseek: int):

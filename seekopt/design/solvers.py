@@ -292,14 +292,15 @@ class IpoptQP:
                           np.zeros(self.n), ok, status, dt, dc, classify_status("ipopt", status, ok), "ipopt")
 
 
-def constraint_violation(A: np.ndarray, x: np.ndarray, lba, uba, lbx, ubx) -> float:
+def constraint_violation(A: np.ndarray, x: np.ndarray, lba, uba, lbx, ubx, abs_A=None) -> float:
     """Largest violation of ``lba <= A x <= uba, lbx <= x <= ubx`` by ``x``, each row relative to the
     size of the terms it sums (``max(1, sum_j |a_ij x_j|)``: the cancellation level); ``inf`` for a
-    non-finite ``x``.  Re-checks a solver's answer against the data (never trust a status alone)."""
+    non-finite ``x``.  Re-checks a solver's answer against the data (never trust a status alone).
+    ``abs_A``: ``|A|`` when the caller keeps it (checks of many answers on one matrix)."""
     if not np.all(np.isfinite(x)):
         return float("inf")
     ax = A @ x
-    scale = np.maximum(1.0, np.abs(A) @ np.abs(x))
+    scale = np.maximum(1.0, (np.abs(A) if abs_A is None else abs_A) @ np.abs(x))
     v = np.concatenate([(lba - ax) / scale, (ax - uba) / scale, lbx - x, x - ubx])
     v = v[np.isfinite(v)]
     return float(max(np.max(v), 0.0)) if v.size else 0.0

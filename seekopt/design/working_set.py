@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from seekopt.design.certificates import phase1_lp
 from seekopt.design.solvers import QPSolution, QPStatus, SolverChain, farkas_certificate, proves_infeasible
 
 __all__ = ["WorkingSetQP"]
@@ -70,29 +71,44 @@ class WorkingSetQP:
         self.max_rounds, self.max_fraction, self.max_add = int(max_rounds), float(max_fraction), float(max_add)
         self._chains: dict = {}
         self._hint = np.zeros(0, dtype=int)      # rows that bound the last answer
+        self._unproven: dict = {}                # problem -> working set of its unconfirmed "infeasible"
         self.rounds = 0                          # reduced solves (statistics)
         self.full_solves = 0
         self.proofs = 0                          # reduced 'infeasible' with a verified certificate
         self.lp_proofs = 0                       # reduced 'infeasible' proven by the phase-1 LP
         self.second_opinions = 0                 # reduced 'infeasible' without one: fallbacks asked
 
-    def _chain(self, n: int, m: int) -> SolverChain:
-        bucket = 32
-        while bucket < m:
-            bucket *= 2
+    def _chain(self, n: int, m: int, step: int | None = None) -> SolverChain:
+        """Solver chain for ``n`` variables and ``m`` rows, padded to a power of two (``step``: to a
+        multiple of ``step`` rows instead: the whole-row solves, whose padding rows daqp would carry
+        through every iteration)."""
+        if step:
+            bucket = -(-m // step) * step
+        else:
+            bucket = 32
+            while bucket < m:
+                bucket *= 2
         key = (n, bucket)
         if key not in self._chains:
             self._chains[key] = self._make_chain(n, bucket)
         return self._chains[key]
 
     def solve(self, K: float, nseek: int, beta, gamma: float, hf_tol, slew_a_per_s=None, x0=None,
-              check=None, confirm: bool = True, nominal_from: int | None = None) -> QPSolution:
+              check=None, confirm: bool = True, screen: bool = True,
+              nominal_from: int | None = None) -> QPSolution:
         """The QP of ``SeekQP.data(K, nseek, beta, gamma, hf_tol, slew_a_per_s, nominal_from)``; ``check(x, A)``
         (full-problem re-check, returns a note or '') as in :meth:`SolverChain.solve`.
 
         ``confirm=False``: a reduced "infeasible" of the primary that fails the Farkas check is
         returned as it is, marked ``sol.unconfirmed = True`` (a search step; the caller confirms the
-        lengths its answer rests on with ``confirm=True``: the full QP decides)."""
+        lengths its answer rests on with ``confirm=True``: the full QP decides).
+
+        ``screen=False``: no row screening -- one solve of the QP on its free variables with every
+        row that has a bound (the fixed variables substituted, the free rows dropped).  That QP is the
+        full QP without what cannot change its answer (same optimum, same feasibility), so its answer
+        and its solvers' "infeasible" stand as the full QP's would (nominal structures of 1300-1800
+        rows: 2-3x less CPU than the full QP, where the pinned samples past the seek are a third of
+        the variables)."""
         qp = self.qp
         g, lba, uba, lbx, ubx = qp.bounds(K, nseek, beta, gamma, hf_tol, slew_a_per_s, nominal_from)
         H, A = self.qp.matrices(K)
@@ -105,22 +121,28 @@ class WorkingSetQP:
         lbr, ubr = lbx[fv], ubx[fv]
         work = np.zeros(len(cand), dtype=bool)
         work |= lc == uc                                       # equalities
+        if not screen:
+            work[:] = True
         work |= np.isin(cand, self._hint)                      # rows that bound the last answer
+        key = (float(K), int(nseek), beta, float(gamma), hf_tol, slew_a_per_s)
+        seen = self._unproven.pop(key, None)
+        if seen is not None and seen.shape == work.shape:     # confirming a search step's "infeasible":
+            work |= seen                                       # start from the rows it ended on
         x = None
         if x0 is not None and np.all(np.isfinite(x0)):
             x = np.clip(x0, lbx, ubx)
-            r = A[cand] @ x
+            r = (A @ x)[cand]           # not A[cand] @ x: that copies the whole matrix (11000 x 192 robust)
             self._add(work, np.maximum(r - uc, lc - r) + self.screen_margin, len(fv))
         wall = cpu = 0.0
         attempts = []
         A_fixed = A[:, lbx == ubx] @ xfix[lbx == ubx] if np.any(xfix) else None
         why = "rounds"
         for _ in range(self.max_rounds):
-            if work.sum() > self.max_fraction * len(cand):
+            if screen and work.sum() > self.max_fraction * len(cand):
                 why = f"working set {work.sum()} of {len(cand)} rows"
                 break
             rows = np.flatnonzero(work)
-            chain = self._chain(len(fv), len(rows))
+            chain = self._chain(len(fv), len(rows), None if screen else 64)
             mb = chain.m
             Ar = np.zeros((mb, len(fv)))
             Ar[:len(rows)] = A[np.ix_(cand[rows], fv)]
@@ -134,10 +156,13 @@ class WorkingSetQP:
             wall, cpu = wall + sol.solve_time_s, cpu + sol.cpu_time_s
             attempts += sol.attempts
             if sol.outcome is QPStatus.INFEASIBLE:
+                if not screen:          # every row: the full QP's "infeasible", at the full QP's trust
+                    return self._done(self._full(sol, fv, xfix, rows, cand), attempts, wall, cpu)
                 if sol.solver != chain.name or proves_infeasible(Ar, lr, ur, lbr, ubr, sol.lam_a):
                     self.proofs += sol.solver == chain.name
                     return self._done(self._full(sol, fv, xfix, rows, cand), attempts, wall, cpu)
                 if not confirm:
+                    self._unproven = {key: work.copy()}
                     out = self._full(sol, fv, xfix, rows, cand)
                     out.unconfirmed = True
                     return self._done(out, attempts, wall, cpu)
@@ -159,7 +184,7 @@ class WorkingSetQP:
                 break
             x = xfix.copy()
             x[fv] = sol.x
-            r = A[cand] @ x
+            r = (A @ x)[cand]
             viol = np.maximum(r - uc, lc - r)
             if not np.any((viol > self.add_tol) & ~work):
                 full = self._full(sol, fv, xfix, rows, cand)
@@ -182,18 +207,37 @@ class WorkingSetQP:
         return self._done(full, attempts + full.attempts, wall + full.solve_time_s, cpu + full.cpu_time_s)
 
     @staticmethod
-    def _certificate(Ar, lr, ur, lbr, ubr, k, lam_a):
-        """Farkas multipliers for the first ``k`` rows of a reduced QP (padded to ``len(Ar)``) from
-        :func:`farkas_certificate`, tried on the rows ``lam_a`` names first, or ``None``."""
-        named = np.flatnonzero(np.abs(np.nan_to_num(np.asarray(lam_a, dtype=float)[:k])) > 1e-12)
-        for sub in (named, np.arange(k)):
-            if not sub.size:
-                continue
-            lam = farkas_certificate(Ar[sub], lr[sub], ur[sub], lbr, ubr)
+    def _certificate(Ar, lr, ur, lbr, ubr, k, lam_a, max_cuts: int = 4):
+        """Farkas multipliers for the first ``k`` rows of a reduced QP (padded to ``len(Ar)``), or ``None``.
+
+        Phase-1 LPs (:func:`~seekopt.design.certificates.phase1_lp`) on the rows ``lam_a`` names, then
+        cutting planes: the rows of the working set the LP's point violates by more than its own
+        largest violation join (the most violated, at most ``max(n / 2, 10)`` per round) and the LP is
+        solved again, up to ``max_cuts`` rounds; last the whole working set.  Every certificate is
+        verified on its rows (:func:`~seekopt.design.certificates.proves_infeasible`).  The cuts
+        prove in 100-180 rows what the whole working set (600-1100 rows, 0.3-0.6 s of HiGHS) did."""
+        def padded(sub, lam):
+            out = np.zeros(len(Ar))
+            out[sub] = lam
+            return out
+        sub = np.flatnonzero(np.abs(np.nan_to_num(np.asarray(lam_a, dtype=float)[:k])) > 1e-12)
+        cap = max(Ar.shape[1] // 2, 10)
+        for _ in range(max_cuts if sub.size else 0):
+            lam, x, t = phase1_lp(Ar[sub], lr[sub], ur[sub], lbr, ubr)
             if lam is not None:
-                out = np.zeros(len(Ar))
-                out[sub] = lam
-                return out
+                return padded(sub, lam)
+            if x is None:
+                break
+            r = Ar[:k] @ x
+            viol = np.maximum(r - ur[:k], lr[:k] - r)
+            new = np.setdiff1d(np.flatnonzero(viol > t + 1e-9), sub)
+            if not new.size:
+                break
+            sub = np.union1d(sub, new[np.argsort(-viol[new])][:cap])
+        if sub.size < k:
+            lam = farkas_certificate(Ar[:k], lr[:k], ur[:k], lbr, ubr)
+            if lam is not None:
+                return padded(np.arange(k), lam)
         return None
 
     def _full(self, sol: QPSolution, fv, xfix, rows, cand) -> QPSolution:
