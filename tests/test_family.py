@@ -142,7 +142,7 @@ def test_family_design_holds_every_member_and_says_which_binds():
     pred = fam.prediction
     assert pred.labels == ["nominal", "member 1", "member 2"]
     N = fam.set_settle_samples      # every plant of the set holds the band from here (the nominal from settle_samples)
-    assert fam.settle_samples <= N == fam.profile.seek_samples
+    assert fam.settle_samples <= N and fam.profile.seek_samples == N + round(3e-4 * FS)   # inputs go on 0.3 ms
     assert pred.nominal.settle_time_s * FS <= fam.settle_samples + 1 + 1e-9
     for lab, m in pred.members():
         assert m.settle_time_s * FS <= N + 1 + 1e-9, lab
