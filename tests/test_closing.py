@@ -390,3 +390,15 @@ def test_compensated_log_is_what_the_linear_plant_sees():
 
 
 # Loop quality on the independent 50.4 kHz drive (issue 10, item 6): tests/test_loop_independent.py (slow).
+
+
+def test_fast_friction_model_holds_against_the_other_forces():
+    """A stuck head (not moving) is held by friction against everything that pushes it: the command,
+    the constant bias and the plant's other forces there (a position-bias table), up to the Coulomb level."""
+    from identification.loop.friction import _friction_force
+    c, u, bias = 2e-3, np.array([0.5e-3, 0.5e-3, 0.5e-3]), 0.25e-3
+    table = np.array([0.0, 1e-3, 3e-3])
+    f = _friction_force(c, 0.0, bias, u, np.zeros(3), np.zeros(3, bool), table)
+    assert np.allclose(f, [-0.75e-3, -1.75e-3, -2e-3])
+    moving = _friction_force(c, 1e-9, bias, u, np.array([-50.0, 50.0, 0.0]), np.array([True, True, False]), table)
+    assert np.allclose(moving, [c + 5e-8, -c - 5e-8, -c])

@@ -164,6 +164,7 @@ def test_failed_solve_is_never_returned(setup, monkeypatch):
                                   "solver crashed", 0.0, 0.0)
 
     monkeypatch.setattr(solvmod.ConicQP, "solve", failing)
+    monkeypatch.setattr(solvmod.DaqpQP, "solve", failing)
     with pytest.raises(DesignError, match="solver crashed"):
         d.design(10.0)
     with pytest.raises(DesignError, match="solver crashed"):
@@ -173,6 +174,7 @@ def test_failed_solve_is_never_returned(setup, monkeypatch):
         return solvmod.QPSolution(np.zeros(self.n), np.zeros(self.m), np.zeros(self.n), True, "1", 0.0, 0.0)
 
     monkeypatch.setattr(solvmod.ConicQP, "solve", lying)
+    monkeypatch.setattr(solvmod.DaqpQP, "solve", lying)
     with pytest.raises(DesignError, match="violation"):
         d.design(10.0)
     with pytest.raises(DesignError, match="violation"):
@@ -242,8 +244,9 @@ def test_designer_built_once_designs_20_lengths_without_rebuilding(setup):
     # reduced problems (working set): one small solver per (free variables, row bucket), built once and
     # kept -- never one per solve
     chains = sum(len(w._chains) for w in d._ws.values()) + sum(q._solver is not None for q in d._qps.values())
-    assert d.solver_builds["daqp"] == chains
-    assert d.solver_builds["daqp"] - solvers["daqp"] <= 8
+    primary = d.settings.qp_solver
+    assert d.solver_builds[primary] == chains
+    assert d.solver_builds[primary] - solvers[primary] <= 8
 
 
 # ------------------------------------------------------------------------- solver statuses
@@ -304,20 +307,23 @@ def test_solver_chain_retries_only_without_proof(primary, fallback, outcome, n_a
 
 
 def test_cycling_primary_falls_back_and_designs_the_same(setup, monkeypatch):
-    """daqp forced to report cycling (-2) on every solve: the fallback (qpoases) designs, the bisection
-    finds the same length as daqp alone, and no length is called infeasible on a cycling status."""
+    """daqp (the package and casadi's) forced to report cycling (-2) on every solve: the fallback
+    (qpoases) designs, the bisection finds the same length as daqp alone, and no length is called
+    infeasible on a cycling status."""
     truth, ctrl, design = setup
     ref = SeekDesigner(SeekProblem(design, ctrl, IMAX)).design(50.0)
-    real = solvmod.ConicQP.solve
+    real, real_pkg = solvmod.ConicQP.solve, solvmod.DaqpQP.solve
+
+    def cycle(sol, name):
+        return solvmod.QPSolution(sol.x, sol.lam_a, sol.lam_x, False, "-2", sol.solve_time_s, sol.cpu_time_s,
+                                  solvmod.classify_status(name, -2, False), name)
 
     def cycling(self, *a, **k):
         sol = real(self, *a, **k)
-        if self.plugin == "daqp":
-            return solvmod.QPSolution(sol.x, sol.lam_a, sol.lam_x, False, "-2", sol.solve_time_s, sol.cpu_time_s,
-                                      solvmod.classify_status("daqp", -2, False), "daqp")
-        return sol
+        return cycle(sol, "daqp") if self.plugin == "daqp" else sol
 
     monkeypatch.setattr(solvmod.ConicQP, "solve", cycling)
+    monkeypatch.setattr(solvmod.DaqpQP, "solve", lambda self, *a, **k: cycle(real_pkg(self, *a, **k), "daqp_pkg"))
     d = SeekDesigner(SeekProblem(design, ctrl, IMAX))
     res = d.design(50.0)
     assert res.settle_samples == ref.settle_samples
@@ -328,7 +334,7 @@ def test_cycling_primary_falls_back_and_designs_the_same(setup, monkeypatch):
 def test_iteration_limit_of_real_daqp_is_retried(setup):
     truth, ctrl, design = setup
     ref = SeekDesigner(SeekProblem(design, ctrl, IMAX)).design(20.0)
-    tight = SolverSettings(options={"daqp": {"daqp": {"iter_limit": 2}}})
+    tight = SolverSettings(options={"daqp_pkg": {"iter_limit": 2}, "daqp": {"daqp": {"iter_limit": 2}}})
     res = SeekDesigner(SeekProblem(design, ctrl, IMAX, solver=tight)).design(20.0)
     assert res.fallback_solves >= 1 and res.unresolved_solves == 0
     assert abs(res.settle_samples - ref.settle_samples) <= 1

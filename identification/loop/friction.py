@@ -20,10 +20,12 @@ from identification.model.plant import ModalPlant
 __all__ = ["fit_friction", "sim_refine", "polish"]
 
 
-def _friction_force(c, vis, bias, u_del, v, moving):
+def _friction_force(c, vis, bias, u_del, v, moving, other=0.0):
     """Fast friction model from measured signals [A]: ``-c sign(v) - vis v`` while moving,
-    and while stuck the force that holds the head, ``-clip(u + bias, -c, c)``."""
-    return np.where(moving, -c * np.sign(v) - vis * v, -np.clip(u_del + bias, -c, c))
+    and while stuck the force that holds the head, ``-clip(u + bias + other, -c, c)``: everything
+    else that pushes it -- the delivered command ``u`` (input effects applied), the constant bias
+    and the plant's other forces at the measured position ``other`` (a position-bias table)."""
+    return np.where(moving, -c * np.sign(v) - vis * v, -np.clip(u_del + bias + other, -c, c))
 
 
 def fit_friction(plant, data, settings):
@@ -39,13 +41,14 @@ def fit_friction(plant, data, settings):
     u = eng.cmd.reshape(-1)
     u_del = np.r_[np.full(m + 1, u[0]), u[:len(u) - m - 1]].reshape(eng.cmd.shape)
     moving = np.abs(v) > 2 * data.v_scale
+    other = eng.force - plant.bias_a           # the plant's forces beyond its constant bias (bias table, pivot)
     base = eng.base_cols()
     B = eng.project(*[base[i] for i in range(len(base)) if i != 1])
     c0, v0 = max(c / (1 + ap.k), 1e-6), max(vis / (1 + ap.k), 1e-12)
 
     def fast(x):
         cc, bb, vv = abs(c0 * (1 + x[0])), plant.bias_a + c0 * x[1], abs(v0 * (1 + x[2]))
-        col = eng.resp(force=_friction_force(cc, vv, bb, u_del, v, moving) + bb - plant.bias_a)
+        col = eng.resp(force=_friction_force(cc, vv, bb, u_del, v, moving, other) + bb - plant.bias_a)
         th, sse = lstsq(eng.project(eng.target() - col)[:, 0], B)
         return sse, th, (cc, bb, vv)
     x = minimize(lambda x: fast(x)[0], np.zeros(3), method="Nelder-Mead",
@@ -60,9 +63,12 @@ def fit_friction(plant, data, settings):
                "fast sticking model, then bias and Coulomb level refined by DiscretePlant simulation")
 
 
-def sim_refine(plant: ModalPlant, data: Data, rounds=("bias", "coulomb", "bias")) -> ModalPlant:
+def sim_refine(plant: ModalPlant, data: Data, rounds=("bias", "coulomb", "bias"), max_shifts: int = 4) -> ModalPlant:
     """Coordinate refinement (Brent, by ``DiscretePlant`` simulation) of ``bias_a`` and of the
-    last effect's (friction) Coulomb level."""
+    last effect's (friction) Coulomb level.  Each search runs on +-5 % (bias) / +-15 % (Coulomb)
+    of the Coulomb level; when its optimum ends at an end of that interval, the interval is moved
+    there (at most ``max_shifts`` times): the fast model's start can be further off than that
+    (other effects the measured signals do not reproduce)."""
     for what in rounds:
         fr = plant.effects[-1]
         c = fr.coulomb_a
@@ -79,9 +85,17 @@ def sim_refine(plant: ModalPlant, data: Data, rounds=("bias", "coulomb", "bias")
             e = simulate(make(x), data.log, data.windows, passes=1, continuous=False, grid=data.grid,
                          cache=data.cache).e
             return float(e @ e)
-        r = minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 0.002 * c, "maxiter": 14})
-        if r.fun < cost(0.0):
-            plant = make(r.x)
+        best, f0 = 0.0, cost(0.0)
+        for _ in range(1 + max_shifts):     # an optimum at the end of the interval: the interval moves on
+            a, b = best + lo, best + hi
+            r = minimize_scalar(cost, bounds=(a, b), method="bounded", options={"xatol": 0.002 * c, "maxiter": 14})
+            if not r.fun < f0:
+                break
+            best, f0 = float(r.x), float(r.fun)
+            if min(best - a, b - best) > 0.05 * (b - a) or (what == "coulomb" and fr.coulomb_a + best <= 0.0):
+                break
+        if best:
+            plant = make(best)
     return plant
 
 

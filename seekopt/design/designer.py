@@ -47,7 +47,7 @@ from seekopt.design.problem import ProblemError, SeekProblem, check_closed_loop
 from seekopt.design.profiles import Profile, exact_rest, finish_profile, reference_from_model, t_bang_bang
 from seekopt.design.result import DesignError, DesignInfeasible, DesignResult, SolveStats
 from seekopt.design.search import bisect_length, gallop_length, predict_length
-from seekopt.design.solvers import SolverChain
+from seekopt.design.solvers import DAQP_PKG, SolverChain
 from seekopt.design.working_set import WorkingSetQP
 
 __all__ = ["DesignInfeasible", "DesignError", "DesignResult", "SeekDesigner", "design_seek"]
@@ -194,7 +194,8 @@ class SeekDesigner:
         if qp not in self._ws:
             s = self.settings
             self._ws[qp] = WorkingSetQP(qp, lambda n, m: SolverChain(n, m, s.chain, s.options,
-                                                                     builds=self._count_solver))
+                                                                     builds=self._count_solver),
+                                        pad=s.qp_solver != DAQP_PKG)
         return self._ws[qp]
 
     def _solve(self, qp: _qp.SeekQP, K, n, beta, stats: SolveStats, warm=None, epigraph=False, confirm=True,

@@ -49,6 +49,10 @@ __all__ = ["NLPSettings", "NLPDesignError", "DesignUnholdable", "NLPSolve", "NLP
            "closed_loop_sample", "close_sample", "SeekNLP", "EffectAwareDesigner", "needs_nlp", "BUILD_COUNT"]
 
 
+#: Ipopt statuses of a time-out (a length not shown feasible, the search moves on)
+_TIMEOUTS = ("Maximum_WallTime_Exceeded", "Maximum_CpuTime_Exceeded")
+
+
 class NLPDesignError(RuntimeError):
     """Ipopt failed, ran out of time, or no design passed the full-plant check (never a profile)."""
 
@@ -218,8 +222,8 @@ class EffectAwareDesigner:
             rec, v, q = nlp.solve(K, T0, n, self.imax, uh, x0, v0, q0, st.band_margin, st.current_margin,
                                   input_map=imap)
             solves.append(rec)
-            if not rec.success and rec.status in ("Maximum_WallTime_Exceeded", "Maximum_CpuTime_Exceeded"):
-                raise NLPDesignError(f"Ipopt timed out ({st.nlp_wall_s:g} s) for {K:g} tracks in {n} samples")
+            # an Ipopt failure or time-out at one length shows nothing about it: that length is not shown
+            # feasible (never a profile: its iterate is dropped) and the search moves on
             if rec.success and spread is not None:      # the whole set on every sample, first order
                 _, e, i = nlp.rollout(x0, v, q, K, T0, self.imax, uh)
                 dE, _ = spread.spread(v, q, K, self.imax)
@@ -244,8 +248,11 @@ class EffectAwareDesigner:
         if hi is None:
             if n_lin is not None:
                 return self._linear_result(lin, lin_m, K, T0, n_lin, solves, say)
+            late = sum(s.status in _TIMEOUTS for s in solves)
             raise NLPDesignError(f"no effect-aware design of {K:g} tracks from track {T0:g} within "
-                                 f"{st.max_samples} samples ({solves[-1].status if solves else 'no NLP'})")
+                                 f"{st.max_samples} samples ({len(solves)} NLPs"
+                                 + (f", {late} timed out at {st.nlp_wall_s:g} s" if late else "")
+                                 + f"; last: {solves[-1].status if solves else 'no NLP'})")
         # verify on the full plant; step up on failure
         tried = 0
         for n in sorted(m for m, (ok, *_ ) in cache.items() if ok and hi <= m <= n_cap) + \
@@ -343,7 +350,7 @@ def _search_length(feasible, residual, n0: int, beta: float, n_max: int):
     Returns ``(lo, hi)``: ``lo`` infeasible (or 0), ``hi`` the shortest feasible (None if none up to
     ``n_max``)."""
     lo, hi, n, step = 0, None, max(int(n0), 1), max(2, int(n0) // 12)
-    seen = []
+    seen, slow, width = [], False, None
     while True:
         ok = feasible(n)
         seen.append(n)
@@ -357,7 +364,9 @@ def _search_length(feasible, residual, n0: int, beta: float, n_max: int):
         guess = None
         if len(fin) >= 2:       # secant on the two points nearest the crossing
             a, b = sorted(fin, key=lambda mr: abs(mr[1] - beta))[:2]
-            if a[1] != b[1] and a[0] != b[0]:
+            # only a residual that falls with the length is extrapolated: a flat or rising one (e.g. a
+            # friction-excited ring the feedforward cannot remove at these lengths) would step by one sample
+            if a[0] != b[0] and (b[1] - a[1]) / (b[0] - a[0]) < 0:
                 guess = math.ceil(a[0] + (beta - a[1]) * (b[0] - a[0]) / (b[1] - a[1]))
         if hi is None:          # nothing feasible yet: go up
             nxt = n + step if guess is None else min(max(guess, n + 1), n + 4 * step)
@@ -371,10 +380,13 @@ def _search_length(feasible, residual, n0: int, beta: float, n_max: int):
             step *= 2
             if nxt < 1:
                 nxt = 1
-        else:                   # bracketed: secant clipped inside, else bisection
-            nxt = (lo + hi) // 2 if guess is None else min(max(guess, lo + 1), hi - 1)
+        else:                   # bracketed: secant clipped inside, bisection when it does not help
+            nxt = (lo + hi) // 2 if guess is None or slow else min(max(guess, lo + 1), hi - 1)
             if nxt in seen:
                 nxt = (lo + hi) // 2
+        # a step that did not halve the bracket (a residual that jumps at the feasible length) -> bisect next
+        slow = hi is not None and width is not None and 2 * (hi - lo) > width
+        width = None if hi is None else hi - lo
         if nxt in seen or nxt <= lo or (hi is not None and nxt >= hi):
             nxt = (lo + hi) // 2 if hi is not None else n + 1
         n = nxt

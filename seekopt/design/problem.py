@@ -17,7 +17,7 @@ import numpy as np
 from identification.model.plant import ModalPlant, atomic_write_text
 
 from seekopt.design.robust import RobustSpec
-from seekopt.design.solvers import QP_PLUGINS
+from seekopt.design.solvers import DAQP_PKG, QP_SOLVERS
 from seekopt.drive.loopcheck import closed_loop_poles
 
 __all__ = ["ProblemError", "SolverSettings", "SeekProblem", "check_closed_loop", "SIZE_CLASSES"]
@@ -40,11 +40,16 @@ class SolverSettings:
     Parameters
     ----------
     qp_solver : str
-        Primary solver: a ``casadi.conic`` plugin (``daqp`` default) or ``ipopt``.
+        Primary solver -- the one place the QP solver is chosen: ``daqp_pkg`` (default: the ``daqp``
+        package called directly, warm-started from the previous length's or round's active set;
+        :class:`seekopt.design.solvers.DaqpQP`), a ``casadi.conic`` plugin (``daqp``: casadi's daqp,
+        the former default, cold starts only; ``qpoases``, ``highs``, ...) or ``ipopt``.
     fallbacks : tuple of str
         Solvers tried, in order, on the same QP when the primary ends in numerical trouble (daqp
         cycling), an iteration limit or an answer that fails the constraint re-check -- before
-        anything is called infeasible (:class:`seekopt.design.solvers.SolverChain`).
+        anything is called infeasible (:class:`seekopt.design.solvers.SolverChain`).  The first
+        fallback also re-checks an "infeasible" of ``daqp_pkg`` that the answer rests on (the package
+        returns no usable multipliers with it; :class:`seekopt.design.working_set.WorkingSetQP`).
     options : dict
         ``{solver name: plugin options}``.
     max_samples : int
@@ -70,8 +75,8 @@ class SolverSettings:
         CPU, with 1 thread 1.3-1.6 s (same designs).
     """
 
-    qp_solver: str = "daqp"
-    fallbacks: tuple = ("qpoases", "highs")
+    qp_solver: str = DAQP_PKG
+    fallbacks: tuple = ("daqp", "qpoases", "highs")
     options: dict = field(default_factory=dict)
     max_samples: int = 512
     size_classes: tuple = SIZE_CLASSES
@@ -85,8 +90,8 @@ class SolverSettings:
         self.fallbacks = tuple(self.fallbacks)
         self.size_classes = tuple(int(c) for c in self.size_classes)
         for name in (self.qp_solver,) + self.fallbacks:
-            if name != "ipopt" and name not in QP_PLUGINS:
-                raise ProblemError(f"unknown QP solver {name!r} (choose from ipopt, {', '.join(QP_PLUGINS)})")
+            if name not in QP_SOLVERS:
+                raise ProblemError(f"unknown QP solver {name!r} (choose from {', '.join(QP_SOLVERS)})")
         if self.max_samples < 2 or self.thin_stride < 1 or not self.violation_tol > 0:
             raise ProblemError("solver settings: max_samples >= 2, thin_stride >= 1, violation_tol > 0 required")
 
@@ -281,7 +286,7 @@ class SeekProblem:
 
     # ------------------------------------------------------------------ legacy keywords
     @classmethod
-    def from_options(cls, plant, controller, imax, settle=0.1, robust=None, *, solver="daqp", solver_options=None,
+    def from_options(cls, plant, controller, imax, settle=0.1, robust=None, *, solver=DAQP_PKG, solver_options=None,
                      max_samples=512, fallbacks=None, **kw) -> "SeekProblem":
         """The former ``SeekDesigner(plant, controller, imax, settle, robust, **options)`` keywords."""
         ss = {"qp_solver": solver, "options": {solver: solver_options} if solver_options else {},

@@ -3,8 +3,12 @@
 All solvers take ``min 1/2 x'Hx + g'x  s.t. lba <= A x <= uba, lbx <= x <= ubx`` with ``H`` and
 ``A`` as :class:`casadi.DM` (converted once by the caller, never per solve):
 
-* :class:`ConicQP` -- ``casadi.conic`` with a QP plugin (``daqp`` default; ``qpoases``, ``highs``,
-  ``osqp``, ``proxqp``, ``qrqp`` accepted), built once for a fixed size;
+* :class:`DaqpQP` (``daqp_pkg``, the default) -- the ``daqp`` package (PyPI) called directly: the
+  same dual active-set algorithm as casadi's daqp plugin, 2x less CPU on the design QPs, and it takes
+  a starting active set (``lam_a0``/``lam_x0``: the previous length's or round's multipliers); its
+  "infeasible" carries ``proven`` (its multipliers checked as a Farkas certificate on the data);
+* :class:`ConicQP` -- ``casadi.conic`` with a QP plugin (``daqp``, ``qpoases``, ``highs``,
+  ``osqp``, ``proxqp``, ``qrqp``), built once for a fixed size;
 * :class:`IpoptQP` -- the same problem as an ``Opti`` + Ipopt NLP (``hessian_constant``,
   ``jac_c_constant``, ``jac_d_constant`` = yes) exported once with ``opti.to_function``;
 * :class:`SolverChain` -- a primary solver and fallbacks, built lazily: a solve that ends in
@@ -30,11 +34,16 @@ import numpy as np
 
 from seekopt.design.certificates import farkas_certificate, proves_infeasible  # noqa: F401
 
-__all__ = ["QPStatus", "classify_status", "QPSolution", "ConicQP", "IpoptQP", "make_qp_solver", "SolverChain",
-           "QP_PLUGINS", "dm", "proves_infeasible", "farkas_certificate", "constraint_violation"]
+__all__ = ["QPStatus", "classify_status", "QPSolution", "ConicQP", "DaqpQP", "IpoptQP", "make_qp_solver",
+           "SolverChain", "QP_PLUGINS", "DAQP_PKG", "QP_SOLVERS", "dm", "kkt_holds", "proves_infeasible", "farkas_certificate",
+           "constraint_violation"]
 
 #: ``casadi.conic`` plugins the designer accepts.
 QP_PLUGINS = ("daqp", "qpoases", "highs", "osqp", "proxqp", "qrqp")
+#: The ``daqp`` package called directly (:class:`DaqpQP`).
+DAQP_PKG = "daqp_pkg"
+#: Every solver name :func:`make_qp_solver` accepts.
+QP_SOLVERS = (DAQP_PKG,) + QP_PLUGINS + ("ipopt",)
 
 
 class QPStatus(str, Enum):
@@ -66,7 +75,7 @@ def classify_status(solver: str, raw, success: bool) -> QPStatus:
     ``numerical``.  Unknown statuses are never taken as proof of infeasibility.
     """
     text = str(raw).strip()
-    if solver == "daqp":
+    if solver in ("daqp", DAQP_PKG):
         try:
             return _DAQP.get(int(float(text)), QPStatus.NUMERICAL)
         except ValueError:
@@ -115,7 +124,9 @@ class QPSolution:
 
     ``outcome`` is the classified :class:`QPStatus` (derived from ``success``/``status`` when not
     given); ``solver`` the solver that produced it; ``attempts`` the ``(solver, raw status,
-    outcome)`` of every solve a :class:`SolverChain` made for this answer.
+    outcome)`` of every solve a :class:`SolverChain` made for this answer.  ``proven``: for an
+    ``infeasible`` of a solver that checks its own multipliers (:class:`DaqpQP`), whether they are a
+    verified Farkas certificate on the data solved; ``None`` where the solver's status is all there is.
     """
 
     x: np.ndarray
@@ -128,6 +139,7 @@ class QPSolution:
     outcome: QPStatus | None = None
     solver: str = ""
     attempts: list = field(default_factory=list)
+    proven: bool | None = None
 
     def __post_init__(self):
         if self.outcome is None:          # raw flags without a solver name: daqp's integer flags
@@ -251,6 +263,120 @@ class ConicQP:
                           outcome is QPStatus.OPTIMAL, str(raw), dt, dc, outcome, self.plugin)
 
 
+class DaqpQP:
+    """The ``daqp`` package (PyPI) on a dense QP of ``n`` variables and ``m`` rows, called directly.
+
+    Same problem form as :class:`ConicQP`; the bounds go to daqp as its simple bounds, rows and
+    variables with ``lb == ub`` as equalities.  Nothing is built per size (daqp sets up its workspace
+    per call), so one instance serves any ``m``.
+
+    Warm start: ``lam_a0``/``lam_x0`` (multipliers in casadi's sign convention, e.g. a previous
+    answer's mapped to these rows) give daqp its starting active set (``dual_start``: the nonzero
+    entries start active).  A warm start that ends in anything but an answer or an infeasibility
+    (a linearly dependent starting set: -6; cycling) is retried cold once.  ``x0`` is not used.
+
+    On ``infeasible`` (daqp exit flag -1) the multipliers daqp returns (its Farkas direction, of
+    opposite sign to casadi's convention; returned in casadi's) are checked on the data
+    (:func:`proves_infeasible`): ``QPSolution.proven`` says whether they prove it.
+
+    Parameters
+    ----------
+    n, m : int
+        Variables and rows (``m`` informative: any row count is accepted).
+    options : dict, optional
+        daqp settings (``iter_limit``, ``primal_tol``, ``dual_tol``, ...), merged over
+        ``iter_limit=5000, primal_tol=1e-9`` (the settings :class:`ConicQP` gives casadi's daqp).
+    """
+
+    name = DAQP_PKG
+    warm_duals = True
+
+    def __init__(self, n: int, m: int, options: dict | None = None):
+        import daqp
+        self._daqp = daqp
+        self.n, self.m, self.plugin = int(n), int(m), DAQP_PKG
+        self.settings = {"iter_limit": 5000, "primal_tol": 1e-9}
+        self.settings.update(options or {})
+        self.warm_retries = 0           # warm starts that failed and were solved cold (statistics)
+
+    def _call(self, H, f, A, bu, bl, sense, dual0):
+        kw = dict(self.settings)
+        if dual0 is not None:
+            kw["dual_start"] = dual0
+        try:
+            x, _, flag, info = self._daqp.solve(H, f, A, bu, bl, sense, **kw)
+            return np.asarray(x, dtype=float), int(flag), np.asarray(info["lam"], dtype=float)
+        except (ValueError, RuntimeError) as exc:      # ill-posed data: numerical trouble, not a proof
+            return None, f"error: {exc}", None
+
+    def solve(self, H, g, A, lba, uba, lbx, ubx, x0=None, lam_a0=None, lam_x0=None) -> QPSolution:
+        """Solve with numpy data; ``lam_a0``/``lam_x0`` (length ``len(A)``/``n``) start the active set."""
+        H = np.ascontiguousarray(H, dtype=float)
+        A = np.ascontiguousarray(A, dtype=float)
+        n, m = H.shape[0], A.shape[0]
+        lba, uba = np.asarray(lba, dtype=float).ravel(), np.asarray(uba, dtype=float).ravel()
+        lbx, ubx = np.asarray(lbx, dtype=float).ravel(), np.asarray(ubx, dtype=float).ravel()
+        bu, bl = np.concatenate([ubx, uba]), np.concatenate([lbx, lba])
+        sense = np.where(bl == bu, 5, 0).astype(np.intc)
+        dual0 = None
+        if lam_a0 is not None or lam_x0 is not None:
+            dual0 = np.concatenate([np.zeros(n) if lam_x0 is None else np.asarray(lam_x0, dtype=float).ravel(),
+                                    np.zeros(m) if lam_a0 is None else np.asarray(lam_a0, dtype=float).ravel()])
+            dual0 = np.nan_to_num(dual0)
+            dual0[sense == 5] = 0.0         # equalities are active from the start anyway
+            if not np.any(dual0):
+                dual0 = None
+        t0, c0 = time.perf_counter(), time.process_time()
+        x, flag, lam = self._call(H, np.asarray(g, dtype=float).ravel(), A, bu, bl, sense, dual0)
+        if dual0 is not None and (flag not in (1, 2, -1) or (flag in (1, 2) and not kkt_holds(
+                H, g, A, lba, uba, lbx, ubx, x, lam[n:], lam[:n]))):
+            # daqp has answered a bad starting set with flag 1 and NaN (or a point that is no optimum):
+            # a warm answer stands only when it satisfies the optimality conditions, else solved cold
+            self.warm_retries += 1
+            x, flag, lam = self._call(H, np.asarray(g, dtype=float).ravel(), A, bu, bl, sense, None)
+        dt, dc = time.perf_counter() - t0, time.process_time() - c0
+        raw = str(flag)
+        if x is None:
+            x, lam, outcome = np.full(n, np.nan), np.full(n + m, np.nan), QPStatus.NUMERICAL
+        else:
+            outcome = classify_status(DAQP_PKG, raw, flag in (1, 2))
+        ok = outcome is QPStatus.OPTIMAL and bool(np.all(np.isfinite(x)))
+        if outcome is QPStatus.OPTIMAL and not ok:
+            outcome = QPStatus.NUMERICAL
+        proven = None
+        if outcome is QPStatus.INFEASIBLE:
+            lam = -lam                      # daqp's Farkas direction -> casadi's sign convention
+            proven = bool(proves_infeasible(A, lba, uba, lbx, ubx, lam[n:]))
+            if not proven:          # daqp 0.11 returns no usable multipliers with most "infeasible"s
+                lam = np.zeros(n + m)
+        return QPSolution(x, lam[n:].copy(), lam[:n].copy(), ok, raw, dt, dc, outcome, DAQP_PKG, proven=proven)
+
+
+def kkt_holds(H, g, A, lba, uba, lbx, ubx, x, lam_a, lam_x, tol: float = 1e-6) -> bool:
+    """True when ``x`` and the multipliers (casadi's sign convention: > 0 upper bound active, < 0 lower)
+    satisfy the optimality conditions of ``min 1/2 x'Hx + g'x, lba <= A x <= uba, lbx <= x <= ubx``
+    (a convex QP: then ``x`` is its optimum) -- stationarity ``H x + g + A' lam_a + lam_x = 0``, primal
+    feasibility and complementarity, each relative to the size of its terms (``tol``)."""
+    if x is None or lam_a is None or not (np.all(np.isfinite(x)) and np.all(np.isfinite(lam_a))
+                                          and np.all(np.isfinite(lam_x))):
+        return False
+    Hx, At = H @ x, A.T @ lam_a
+    r = Hx + g + At + lam_x
+    scale = 1.0 + np.abs(Hx) + np.abs(g) + np.abs(A).T @ np.abs(lam_a) + np.abs(lam_x)
+    if np.any(np.abs(r) > tol * scale):
+        return False
+    ax = A @ x
+    row = 1.0 + np.abs(A) @ np.abs(x)
+    if np.any(ax < lba - tol * row) or np.any(ax > uba + tol * row) or np.any(x < lbx - tol) or np.any(x > ubx + tol):
+        return False
+    big = tol * (1.0 + float(np.max(np.abs(np.r_[lam_a, lam_x]), initial=0.0)))
+    up, lo = lam_a > big, lam_a < -big
+    if np.any(np.abs(ax[up] - uba[up]) > tol * row[up]) or np.any(np.abs(ax[lo] - lba[lo]) > tol * row[lo]):
+        return False
+    up, lo = lam_x > big, lam_x < -big
+    return not (np.any(np.abs(x[up] - ubx[up]) > tol) or np.any(np.abs(x[lo] - lbx[lo]) > tol))
+
+
 class IpoptQP:
     """The same dense QP as an ``Opti`` problem solved by Ipopt, exported once with
     ``opti.to_function`` (the general NLP path; QP structure declared to Ipopt)."""
@@ -306,8 +432,11 @@ def constraint_violation(A: np.ndarray, x: np.ndarray, lba, uba, lbx, ubx, abs_A
     return float(max(np.max(v), 0.0)) if v.size else 0.0
 
 
-def make_qp_solver(n: int, m: int, solver: str = "daqp", options: dict | None = None):
-    """:class:`IpoptQP` for ``solver="ipopt"``, else :class:`ConicQP` with that plugin."""
+def make_qp_solver(n: int, m: int, solver: str = DAQP_PKG, options: dict | None = None):
+    """:class:`DaqpQP` for ``solver="daqp_pkg"``, :class:`IpoptQP` for ``"ipopt"``, else :class:`ConicQP`
+    with that plugin."""
+    if solver == DAQP_PKG:
+        return DaqpQP(n, m, options)
     return IpoptQP(n, m, options) if solver == "ipopt" else ConicQP(n, m, solver, options)
 
 
@@ -316,9 +445,12 @@ class SolverChain:
 
     :meth:`solve` returns the first ``optimal`` answer that passes ``check`` (the caller's
     constraint re-check: a status is never trusted alone); an answer that fails it counts as
-    ``numerical``.  ``infeasible`` from a solver ends the chain (the solver proved it); any other
-    outcome (``numerical``, ``iteration_limit``) moves on to the next solver.  When every solver
-    has failed without a proof, the answer is the last one, with its outcome (never
+    ``numerical``.  ``infeasible`` from a solver ends the chain (the solver proved it) -- except an
+    ``infeasible`` whose own multipliers failed the Farkas check (``proven is False``, :class:`DaqpQP`):
+    with ``prove=True`` the next solvers are asked (a second opinion); with ``prove=False`` it is
+    returned as it is (the caller proves it, e.g. :class:`seekopt.design.working_set.WorkingSetQP`).
+    Any other outcome (``numerical``, ``iteration_limit``) moves on to the next solver.  When every
+    solver has failed without a proof, the answer is the last one, with its outcome (never
     ``infeasible``).
 
     Parameters
@@ -344,6 +476,16 @@ class SolverChain:
     def name(self) -> str:
         return self.names[0]
 
+    @property
+    def sized(self) -> bool:
+        """The primary is built for a fixed row count (casadi): callers pad rows to a few sizes."""
+        return self.names[0] != DAQP_PKG
+
+    @property
+    def warm_duals(self) -> bool:
+        """The primary takes a starting active set (``lam0`` of :meth:`solve`)."""
+        return bool(getattr(self.get(self.names[0]), "warm_duals", False))
+
     def get(self, name: str):
         if name not in self._solvers:
             self._solvers[name] = make_qp_solver(self.n, self.m, name, self.options.get(name))
@@ -351,20 +493,43 @@ class SolverChain:
                 self._on_build(name)
         return self._solvers[name]
 
-    def solve(self, *data, x0=None, check=None, start: int = 0) -> QPSolution:
-        """Solve ``data = (H, g, A, lba, uba, lbx, ubx)``; ``x0`` warm-starts the first solver only;
+    def _padded(self, solver, data, x0) -> QPSolution:
+        """A solver built for ``self.m`` rows on data with fewer: free zero rows appended, multipliers
+        trimmed back."""
+        H, g, A, lba, uba, lbx, ubx = data
+        k = len(A)
+        Ap = np.zeros((self.m, A.shape[1]))
+        Ap[:k] = A
+        lp = np.full(self.m, -np.inf); lp[:k] = lba
+        up = np.full(self.m, np.inf); up[:k] = uba
+        sol = solver.solve(H, g, Ap, lp, up, lbx, ubx, x0=x0)
+        sol.lam_a = sol.lam_a[:k]
+        return sol
+
+    def solve(self, *data, x0=None, check=None, start: int = 0, lam0=None, prove: bool = True) -> QPSolution:
+        """Solve ``data = (H, g, A, lba, uba, lbx, ubx)``; ``x0`` warm-starts the first solver only, as
+        ``lam0 = (lam_a0, lam_x0)`` (a starting active set) does a first solver that takes one;
         ``check(x)`` returns a note (str) when ``x`` fails the caller's re-check, else ''; ``start``
-        skips the first solvers of the chain (a second opinion)."""
+        skips the first solvers of the chain (a second opinion); ``prove``: see the class."""
         attempts, sol, wall, cpu = [], None, 0.0, 0.0
         for i, name in enumerate(self.names[start:]):
-            sol = self.get(name).solve(*data, x0=x0 if i == 0 else None)
+            solver = self.get(name)
+            if i == 0 and lam0 is not None and getattr(solver, "warm_duals", False):
+                sol = solver.solve(*data, x0=x0, lam_a0=lam0[0], lam_x0=lam0[1])
+            elif name != DAQP_PKG and isinstance(data[2], np.ndarray) and len(data[2]) < self.m:
+                sol = self._padded(solver, data, x0 if i == 0 else None)
+            else:
+                sol = solver.solve(*data, x0=x0 if i == 0 else None)
             wall, cpu = wall + sol.solve_time_s, cpu + sol.cpu_time_s
             if sol.outcome is QPStatus.OPTIMAL and check is not None:
                 note = check(sol.x)
                 if note:
                     sol.success, sol.outcome, sol.status = False, QPStatus.NUMERICAL, f"{sol.status}; {note}"
-            attempts.append((name, sol.status, sol.outcome.value))
-            if sol.outcome in (QPStatus.OPTIMAL, QPStatus.INFEASIBLE):
+            unproven = sol.outcome is QPStatus.INFEASIBLE and sol.proven is False
+            attempts.append((name, sol.status + (" (unverified)" if unproven else ""), sol.outcome.value))
+            if sol.outcome is QPStatus.OPTIMAL or (sol.outcome is QPStatus.INFEASIBLE and not (prove and unproven)):
                 break
+        if prove and sol.outcome is QPStatus.INFEASIBLE and sol.proven is False:
+            sol.outcome, sol.status = QPStatus.NUMERICAL, f"{sol.status}; infeasible without a verified certificate"
         sol.attempts, sol.solve_time_s, sol.cpu_time_s = attempts, wall, cpu
         return sol

@@ -26,9 +26,14 @@ then the whole working set) whose duals must pass the same check; only when that
 the full QP decide (the primary's and fallbacks' trust level without the working set).  A search
 step (``confirm=False``) returns an unverified "infeasible" marked unconfirmed.
 
-Reduced problems are solved through casadi's zero-copy buffers on numpy data
-(:meth:`seekopt.design.solvers.ConicQP.solve`), one solver chain per (free variables, row bucket);
-row counts are padded to a few buckets (powers of two).  When the working set grows past
+Reduced problems are solved by the primary solver of the chain: the ``daqp`` package
+(:class:`seekopt.design.solvers.DaqpQP`, the default) takes any row count and a starting active
+set -- each solve starts from the active set of this structure's last answer (the previous round of
+the same length, else the previous length of the search or the previous seek), mapped to the
+reduced rows and variables; its "infeasible" stands only with its multipliers verified as a
+Farkas certificate (``QPSolution.proven``), else as above.  A casadi primary is solved through
+casadi's zero-copy buffers (:meth:`seekopt.design.solvers.ConicQP.solve`), one solver chain per
+(free variables, row bucket), row counts padded to a few buckets (powers of two).  When the working set grows past
 ``max_fraction`` of the rows, or a reduced solve ends without an answer or a proof, the full QP is
 solved as without the working set.
 """
@@ -62,11 +67,22 @@ class WorkingSetQP:
         At most ``max_add * n`` violated rows (the most violated) join per round.
     near : float
         With the violated rows, rows within ``near`` of their bound join too (fewer rounds).
+    pad : bool
+        Pad the reduced data's rows to the chain's size (casadi solvers are built per size); False for a
+        primary that takes any size (:class:`seekopt.design.solvers.DaqpQP`), whose padding rows would
+        only cost (the chain pads for its casadi fallbacks itself).
+    warm : bool
+        Start each solve from the active set of the last answer of this structure (the previous round
+        of this length, else the previous length's or seek's), mapped to the reduced rows and variables,
+        when the primary takes one (``SolverChain.warm_duals``).
     """
 
     def __init__(self, qp, chain, *, screen_margin: float = 0.02, add_tol: float = 1e-7, max_rounds: int = 40,
-                 max_fraction: float = 0.5, max_add: float = 1.0, near: float = 0.02):
+                 max_fraction: float = 0.5, max_add: float = 1.0, near: float = 0.02, pad: bool = True,
+                 warm: bool = True):
         self.qp, self._make_chain = qp, chain
+        self.pad, self.warm = bool(pad), bool(warm)
+        self._lam = None                         # (lam_a, lam_x) of the last answer, full rows and variables
         self.screen_margin, self.add_tol, self.near = float(screen_margin), float(add_tol), float(near)
         self.max_rounds, self.max_fraction, self.max_add = int(max_rounds), float(max_fraction), float(max_add)
         self._chains: dict = {}
@@ -77,11 +93,13 @@ class WorkingSetQP:
         self.proofs = 0                          # reduced 'infeasible' with a verified certificate
         self.lp_proofs = 0                       # reduced 'infeasible' proven by the phase-1 LP
         self.second_opinions = 0                 # reduced 'infeasible' without one: fallbacks asked
+        self.rechecks = 0                        # DaqpQP 'infeasible' re-solved by the chain's next solver
 
     def _chain(self, n: int, m: int, step: int | None = None) -> SolverChain:
         """Solver chain for ``n`` variables and ``m`` rows, padded to a power of two (``step``: to a
         multiple of ``step`` rows instead: the whole-row solves, whose padding rows daqp would carry
-        through every iteration)."""
+        through every iteration).  Without ``self.pad`` the data keep their exact row count (the chain
+        pads it for its casadi solvers only)."""
         if step:
             bucket = -(-m // step) * step
         else:
@@ -143,7 +161,7 @@ class WorkingSetQP:
                 break
             rows = np.flatnonzero(work)
             chain = self._chain(len(fv), len(rows), None if screen else 64)
-            mb = chain.m
+            mb = chain.m if self.pad else len(rows)
             Ar = np.zeros((mb, len(fv)))
             Ar[:len(rows)] = A[np.ix_(cand[rows], fv)]
             shift = 0.0 if A_fixed is None else A_fixed[cand[rows]]
@@ -151,43 +169,67 @@ class WorkingSetQP:
             ur = np.full(mb, np.inf); ur[:len(rows)] = uc[rows] - shift
             data = (Hr, gr, Ar, lr, ur, lbr, ubr)
             xr0 = None if x is None else x[fv]
-            sol = chain.solve(*data, x0=xr0)
+            lam0 = None
+            if self._lam is not None and self.warm and chain.warm_duals:
+                la = np.zeros(mb)
+                la[:len(rows)] = self._lam[0][cand[rows]]
+                lam0 = (la, self._lam[1][fv])
+            sol = chain.solve(*data, x0=xr0, lam0=lam0, prove=False)
             self.rounds += 1
             wall, cpu = wall + sol.solve_time_s, cpu + sol.cpu_time_s
             attempts += sol.attempts
             if sol.outcome is QPStatus.INFEASIBLE:
-                if not screen:          # every row: the full QP's "infeasible", at the full QP's trust
+                # a fallback's "infeasible" (asked after the primary's trouble), or a casadi solver's on
+                # every row, stands at that solver's trust as before; the primary's needs a verified
+                # certificate on a subset of the rows (DaqpQP checks its own multipliers: ``proven``)
+                if sol.proven is None and (sol.solver != chain.name or not screen):
                     return self._done(self._full(sol, fv, xfix, rows, cand), attempts, wall, cpu)
-                if sol.solver != chain.name or proves_infeasible(Ar, lr, ur, lbr, ubr, sol.lam_a):
-                    self.proofs += sol.solver == chain.name
+                proved = sol.proven if sol.proven is not None else proves_infeasible(Ar, lr, ur, lbr, ubr, sol.lam_a)
+                if proved:
+                    self.proofs += 1
                     return self._done(self._full(sol, fv, xfix, rows, cand), attempts, wall, cpu)
                 if not confirm:
                     self._unproven = {key: work.copy()}
                     out = self._full(sol, fv, xfix, rows, cand)
                     out.unconfirmed = True
                     return self._done(out, attempts, wall, cpu)
-                # a phase-1 LP on the rows daqp's multipliers name, then on the whole working set: a
-                # verified Farkas certificate on a subset of the rows proves the full QP infeasible
-                # (10-60 ms on the named rows, 0.3-0.5 s on the working set, ~1 s for the full QP)
-                lam = self._certificate(Ar, lr, ur, lbr, ubr, len(rows), sol.lam_a)
-                if lam is not None:
-                    self.lp_proofs += 1
-                    sol.lam_a = lam
-                    return self._done(self._full(sol, fv, xfix, rows, cand), attempts, wall, cpu)
-                # unproven: the full QP decides (the fallbacks on the reduced QP were slower:
-                # qpOASES hit its iteration limit after 1-3 s on robust K = 850)
-                self.second_opinions += 1
-                why = "reduced infeasible without a certificate"
-                break
+                if sol.proven is False and len(chain.names) > 1:
+                    # DaqpQP: the package returns no usable multipliers with its "infeasible"; the next
+                    # solver of the chain (casadi's daqp by default) re-solves this QP: on every row
+                    # its agreeing "infeasible" is the re-check (main trusted casadi's daqp alone
+                    # there); on a working set its multipliers seed the certificate below
+                    self.rechecks += 1
+                    sol = chain.solve(*data, start=1, prove=False)
+                    wall, cpu = wall + sol.solve_time_s, cpu + sol.cpu_time_s
+                    attempts += sol.attempts
+                    if sol.outcome is QPStatus.INFEASIBLE and (not screen or (
+                            sol.proven is not False and proves_infeasible(Ar, lr, ur, lbr, ubr, sol.lam_a))):
+                        self.proofs += screen
+                        return self._done(self._full(sol, fv, xfix, rows, cand), attempts, wall, cpu)
+                if sol.outcome is QPStatus.INFEASIBLE:
+                    # a phase-1 LP on the rows the multipliers name, then on the whole working set: a
+                    # verified Farkas certificate on a subset of the rows proves the full QP infeasible
+                    # (10-60 ms on the named rows, 0.3-0.5 s on the working set, ~1 s for the full QP)
+                    lam = self._certificate(Ar, lr, ur, lbr, ubr, len(rows), sol.lam_a)
+                    if lam is not None:
+                        self.lp_proofs += 1
+                        sol.lam_a = lam
+                        return self._done(self._full(sol, fv, xfix, rows, cand), attempts, wall, cpu)
+                    # unproven: the full QP decides (the fallbacks on the reduced QP were slower:
+                    # qpOASES hit its iteration limit after 1-3 s on robust K = 850)
+                    self.second_opinions += 1
+                    why = "reduced infeasible without a certificate"
+                    break
             if sol.outcome is not QPStatus.OPTIMAL:
                 why = f"reduced {sol.outcome.value}"
                 break
             x = xfix.copy()
             x[fv] = sol.x
+            full = self._full(sol, fv, xfix, rows, cand)
+            self._lam = (full.lam_a, full.lam_x)           # the next round's or length's starting active set
             r = (A @ x)[cand]
             viol = np.maximum(r - uc, lc - r)
             if not np.any((viol > self.add_tol) & ~work):
-                full = self._full(sol, fv, xfix, rows, cand)
                 self._hint = cand[rows[np.abs(np.nan_to_num(sol.lam_a[:len(rows)])) > 1e-12]]   # the active set
                 if check is not None:
                     note = check(full.x, A)
@@ -204,6 +246,7 @@ class WorkingSetQP:
                                check=None if check is None else (lambda x: check(x, A)))
         if full.outcome is QPStatus.OPTIMAL:
             self._hint = np.flatnonzero(np.abs(np.nan_to_num(full.lam_a)) > 1e-12)
+            self._lam = (np.nan_to_num(full.lam_a), np.nan_to_num(full.lam_x))
         return self._done(full, attempts + full.attempts, wall + full.solve_time_s, cpu + full.cpu_time_s)
 
     @staticmethod
