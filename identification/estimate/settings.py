@@ -138,6 +138,9 @@ class RobustSettings(IdentifySettings):
         residual variances, as a multiple of ``t_min^2`` [-]), ``scan_max_new`` (peaks tried per
         round), ``scan_peak_sep_rel`` (least separation of the peaks tried in one round),
         ``scan_fine_span_rel`` / ``scan_fine_points`` (the fine grid around a peak: +-span in ln f, points),
+        ``scan_ar_zeta_max`` (the scan also looks around each pole of the AR noise model damped less
+        than this [-], at steps of half the pole's damping: a lightly damped mode the noise model
+        absorbed leaves a spike narrower than the grid step; 0 disables),
         ``scan_proposal_sep_rel`` (least separation of refined proposals), ``tabu_sep_rel`` (no
         proposal this close to a frequency proposed or dropped before), ``existing_sep_rel`` (nor
         this close to a fitted mode), ``scan_idle_rounds`` (rounds without a new mode that stop
@@ -179,6 +182,7 @@ class RobustSettings(IdentifySettings):
     scan_peak_sep_rel: float = 0.05
     scan_fine_span_rel: float = 0.02
     scan_fine_points: int = 17
+    scan_ar_zeta_max: float = 0.05
     scan_proposal_sep_rel: float = 0.03
     tabu_sep_rel: float = 0.01
     existing_sep_rel: float = 0.02
