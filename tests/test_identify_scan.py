@@ -2,11 +2,12 @@
 damped mode between the points of a 2 % grid is proposed.
 
 The log is from the independent drive simulator (``tests/drives``): the NSS-like drive with its 5 kHz
-mode (zeta 0.01, inside the controller's 5 kHz notch) at gain 0.07 instead of 0.3, 40 seeks.  The
+mode (zeta 0.01, inside the controller's 5 kHz notch) at gain 0.05 instead of 0.3, 40 seeks.  The
 model handed to the scan is the truth without that mode, so the AR noise model is fitted to a
 residual that holds it -- the situation of the loop's re-identification of a compensated log, where
-the 0.3 mode was lost.  Measured: the whitened statistic is 96 residual variances at 5000 Hz and
-27 / 29 at the 2 % grid's points 4946 / 5045 Hz (gate 50); the old grid proposes nothing.
+the 0.3 mode was lost.  Measured: the AR noise model has a pole at 5002 Hz, zeta 0.013; the
+whitened statistic (scan damping 0.01) is 60 residual variances at 5000 Hz and 14.5 / 13.9 at the
+2 % grid's points 4946 / 5045 Hz (gate 25), 3.6 at most with scan damping 0.05.
 """
 import numpy as np
 import pytest
@@ -23,7 +24,7 @@ F_MODE = 5000.0
 @pytest.fixture(scope="module")
 def case():
     t = nss_truth()
-    modes = tuple(ModeSpec(m.freq_hz, m.zeta, 0.07 if m.freq_hz == F_MODE else m.gain) for m in t.modes)
+    modes = tuple(ModeSpec(m.freq_hz, m.zeta, 0.05 if m.freq_hz == F_MODE else m.gain) for m in t.modes)
     d = nss_drive(TruthPlant(k0=t.k0, modes=modes, bias_a=t.bias_a, delay_s=t.delay_s,
                              track_pitch_nm=t.track_pitch_nm), seed=4)
     log = make_log(d, Schedule(n_seeks=40, seed=4), noise_seed=4)
@@ -62,7 +63,7 @@ def test_scan_grid_follows_the_resonance_bandwidth(case):
 
 def test_mode_between_grid_points_is_proposed(case):
     """The 2 % grid (``scan_step_zeta`` large, no AR-pole points) sees the mode below the gate at its
-    points and adds nothing there; the scan adds it within 0.5 %."""
+    points, above it between them; the scan adds it within 0.5 %."""
     log, x = case
     s = RobustSettings()
     gate = s.scan_gate * s.t_min ** 2
@@ -74,8 +75,6 @@ def test_mode_between_grid_points_is_proposed(case):
     st, r = vp_old.scan(x, np.r_[near, F_MODE], s.scan_zetas)
     s2 = float(r @ r) / (len(r) - (len(x) - 1) // 2 - 2)
     assert st[:-1].max() / s2 < gate < st[-1].max() / s2     # a spike between the grid points
-    xo = old.search(vp_old, x)
-    assert not np.any(np.abs(np.exp(xo[:(len(xo) - 1) // 2]) / F_MODE - 1) < 0.01)
 
     run, vp = _problem(s, log, x)
     xn = run.search(vp, x)
