@@ -17,7 +17,8 @@ b. Joint output-error fit of the measured position to the measured current over 
    position): the residual is prewhitened by an AR(``ar_order``) model of the first fit's residual
    -- the direct prediction-error method with an AR noise model, consistent in closed loop when
    the noise model whitens the residual, and near-efficient.  Modes the settle windows do not show
-   are found by a scan of the whitened residual over a frequency grid (the residual-sum-of-squares
+   are found by a scan of the whitened residual over a frequency grid stepped by the scanned
+   damping (and finer around lightly damped poles of the noise model; the residual-sum-of-squares
    reduction of one more mode, refined on a finer local grid, added while significant), and modes
    whose gain is not significant (``|g| / std < t_min``) are dropped.  A repeatable run-out (period
    detected in the residual of the model with its modes, :func:`identification.estimate.varpro.detect_period`)
@@ -231,16 +232,16 @@ class _Run:
         bandwidth, plus a local grid around each lightly damped pole of ``vp``'s noise model.
 
         A mode's scan statistic falls off over about its half-power band ``+-zeta f``, and after
-        whitening faster: on the sample log's 12.3 kHz mode (zeta 0.005) the statistic is 56
-        residual variances at 12300 Hz, 23 at +0.5 % and below 17 further out, so a 2 % grid
-        misses it between its points.  The grid of the column of damping ``zeta`` is therefore
-        stepped by ``min(scan_step_rel, scan_step_zeta * zeta)`` (relative).  An AR noise model fitted
-        to a residual that still holds an unmodelled lightly damped mode takes the resonance as a pole
-        (Kt drive's re-identification: a 5001 Hz, zeta 0.0097 AR pole for a 5 kHz, zeta 0.01 mode, no
-        other pole below zeta 0.036); the whitening FIR then nearly cancels the mode and what is left
-        is a spike of about the pole's bandwidth (+-0.4 % there: 94 residual variances at 5000 Hz,
-        8 / 12 at the old grid's 4946 / 5045 Hz).  So around each pole of damping
-        ``zeta_p < scan_ar_zeta_max`` every column is also evaluated at the pole's frequency and at
+        whitening it can fall off faster: an AR noise model fitted to a residual that still holds
+        an unmodelled lightly damped mode takes the resonance as a pole, the whitening FIR nearly
+        cancels the mode, and what is left is a spike of about the pole's bandwidth.  On the loop's
+        re-identification of the Kt drive's compensated log (a 5 kHz, zeta 0.01, gain 0.3 mode in the
+        controller's notch, missing from the model): AR pole 5000.6 Hz, zeta 0.0093 (every other pole
+        damped more than 0.03); statistic 87 residual variances at 5000 Hz, 56 / 60 at -0.25 / +0.25 %,
+        and 5.5 / 13.8 at the 2 % grid's points 4946 / 5045 Hz (gate 25).  So the grid of the column
+        of damping ``zeta`` is stepped by ``min(scan_step_rel, scan_step_zeta * zeta)`` (relative;
+        0.5 % for zeta 0.01), and around each noise-model pole of damping ``zeta_p < scan_ar_zeta_max``
+        every column is also evaluated at the pole's frequency and at
         relative steps of ``scan_step_zeta * zeta_p`` out to +-``scan_step_rel``."""
         s = self.s
         extra = []
