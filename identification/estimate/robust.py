@@ -69,6 +69,7 @@ from identification.estimate.pencil import matrix_pencil, stabilisation_diagram
 from identification.estimate.prony import z_to_modal
 from identification.estimate.result import Identification
 from identification.estimate.rigid import momentum_bias, rigid_fit, whole_log_bias
+from identification.estimate.scangrid import scan_grids
 from identification.estimate.settings import RobustSettings
 from identification.estimate.varpro import VarPro, ar_whitener, detect_period, fir_filter, periodic_columns
 from identification.logs.seeklog import SeekLog, segment_seeks
@@ -227,37 +228,8 @@ class _Run:
 
     # ----------------------------------------------------------------------- the scan for missed modes
     def scan_grids(self, vp: VarPro) -> list[tuple[float, np.ndarray]]:
-        """The scan's ``[(zeta, frequencies [Hz]), ...]`` for the whitened problem ``vp``: for each
-        damping ratio of ``scan_zetas`` a log-spaced grid whose step follows that resonance's
-        bandwidth, plus a local grid around each lightly damped pole of ``vp``'s noise model.
-
-        A mode's scan statistic falls off over about its half-power band ``+-zeta f``, and after
-        whitening it can fall off faster: an AR noise model fitted to a residual that still holds
-        an unmodelled lightly damped mode takes the resonance as a pole, the whitening FIR nearly
-        cancels the mode, and what is left is a spike of about the pole's bandwidth.  On the loop's
-        re-identification of the Kt drive's compensated log (a 5 kHz, zeta 0.01, gain 0.3 mode in the
-        controller's notch, missing from the model): AR pole 5000.6 Hz, zeta 0.0093 (every other pole
-        damped more than 0.03); statistic 87 residual variances at 5000 Hz, 56 / 60 at -0.25 / +0.25 %,
-        and 5.5 / 13.8 at the 2 % grid's points 4946 / 5045 Hz (gate 25).  So the grid of the column
-        of damping ``zeta`` is stepped by ``min(scan_step_rel, scan_step_zeta * zeta)`` (relative;
-        0.5 % for zeta 0.01), and around each noise-model pole of damping ``zeta_p < scan_ar_zeta_max``
-        every column is also evaluated at the pole's frequency and at
-        relative steps of ``scan_step_zeta * zeta_p`` out to +-``scan_step_rel``."""
-        s = self.s
-        extra = []
-        if vp.ar is not None and len(vp.ar) >= 3 and s.scan_ar_zeta_max:
-            z = np.roots(vp.ar)
-            for fp, zp in zip(*z_to_modal(z[z.imag > 0], self.fs)):
-                if self.lo <= fp <= self.hi and 0 < zp < s.scan_ar_zeta_max:
-                    step = min(s.scan_step_zeta * zp, s.scan_step_rel)
-                    n = int(math.ceil(s.scan_step_rel / step))
-                    extra.append(fp * np.exp(np.arange(-n, n + 1) * step))
-        out = []
-        for zt in s.scan_zetas:
-            step = min(s.scan_step_rel, s.scan_step_zeta * zt)
-            grid = np.exp(np.arange(math.log(self.lo), math.log(self.hi), math.log1p(step)))
-            out.append((zt, np.unique(np.concatenate([grid] + extra))))
-        return out
+        """The scan's ``[(zeta, frequencies [Hz]), ...]`` for ``vp`` (:func:`identification.estimate.scangrid.scan_grids`)."""
+        return scan_grids(self.s, vp.ar, self.lo, self.hi, self.fs)
 
     def _peaks(self, vp: VarPro, x, grids):
         """Frequencies [Hz] of the best scan peaks of this round (see :meth:`search`) on ``grids``
