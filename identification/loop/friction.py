@@ -126,7 +126,7 @@ def sim_refine_table(plant: ModalPlant, data: Data, knots: int = 5, max_evals: i
     def make(x):
         eff = list(plant.effects)
         eff[i_tab] = PositionBias([float(k) for k in kn], [float(b) for b in v0 + c * (x[:K] @ H)])
-        eff[-1] = Friction(max(c * (1.0 + x[K]), 0.0), fr.viscous_a_per_tps)
+        eff[-1] = Friction(float(max(c * (1.0 + x[K]), 0.0)), fr.viscous_a_per_tps)
         return plant.copy(effects=eff)
 
     def cost(x):
