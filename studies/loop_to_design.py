@@ -10,7 +10,8 @@ For each synthetic drive (a truth other than the bundled one: flex mode 300 Hz, 
 
 then every profile is played from ``T`` on the drive (the truth with its effects) by the one simulator
 (:func:`seekopt.design.feasibility.play_seek`), and the linear design also on the same drive without
-its effects.  Starts at 20 %, 50 % and 80 % of the logged range (``position_range_track`` the loop
+its effects; the reference the target is stated against ("the same seek on the effect-free drive") is
+the seek designed (QP, ``--robust`` as given) for the effect-free drive's own plant and played on it.  Starts at 20 %, 50 % and 80 % of the logged range (``position_range_track`` the loop
 wrote), seek lengths ``--tracks``.  Prints one Markdown table: settle of the linear design, the
 effect-aware design and the effect-free drive, their ratio, peak current on the full plant, Ipopt
 time per design.  A design that ``seekopt design`` refuses (exit 2) is a row with its message.
@@ -87,6 +88,7 @@ def run_case(name: str, out: Path, tracks, starts, seeks: int, robust: str) -> l
     P, T = ModalPlant.load(plant), ModalPlant.load(truth)
     P.linear_part().to_json(linear)
     free = T.copy(effects=[])             # the same drive without its effects
+    free.to_json(d / "free_truth.json")
     ctrl = Controller.nss()
     rng = P.meta.get("position_range_track") or [0.0, 60000.0]
     rows = []
@@ -96,12 +98,20 @@ def run_case(name: str, out: Path, tracks, starts, seeks: int, robust: str) -> l
             ensure(cli("design", "-q", "--plant", linear, "--tracks", K, "--imax", IMAX, "--robust", robust,
                        "-o", lin_csv), f"{name}: linear design {K}")
         lin = Profile.from_csv(lin_csv)
+        # the reference: the seek designed for the effect-free drive itself (its plant known), played on it
+        ref_csv = d / f"known_free_{K:g}.csv"
+        if not ref_csv.exists():
+            ensure(cli("design", "-q", "--plant", d / "free_truth.json", "--tracks", K, "--imax", IMAX, "--robust",
+                       robust, "-o", ref_csv), f"{name}: known-plant design {K}")
+        ref = Profile.from_csv(ref_csv)
         for s in starts:
             T0 = round(rng[0] + s * (rng[1] - rng[0]))
             row = {"case": name, "K": K, "start": f"{s:.0%} ({T0})", "accepted": ", ".join(e.name for e in P.effects)}
             m_lin, _ = play_seek(T, ctrl, lin, T0)
             m_free, _ = play_seek(free, ctrl, lin, T0)
-            row.update(linear_ms=m_lin.settle_time_s * 1e3, free_ms=m_free.settle_time_s * 1e3)
+            m_ref, _ = play_seek(free, ctrl, ref, T0)
+            row.update(linear_ms=m_lin.settle_time_s * 1e3, free_ms=m_free.settle_time_s * 1e3,
+                       known_free_ms=m_ref.settle_time_s * 1e3)
             aw_csv = d / f"aware_{K:g}_{T0}.csv"
             t = time.perf_counter()
             cp = cli("design", "-q", "--plant", plant, "--tracks", K, "--imax", IMAX, "--robust", robust,
@@ -121,13 +131,17 @@ def run_case(name: str, out: Path, tracks, starts, seeks: int, robust: str) -> l
 
 
 def table(rows) -> str:
-    head = ("| drive | K | start (track) | linear design | effect-aware | effect-free | aware / free | peak A "
-            "| path | Ipopt s | note |\n|---|---|---|---|---|---|---|---|---|---|---|")
+    head = ("| drive | K | start (track) | linear design | effect-aware | effect-free | aware / free "
+            "| known-plant design, effect-free | aware / known | peak A "
+            "| path | Ipopt s | note |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     out = [head]
     for r in rows:
         ratio = r["aware_ms"] / r["free_ms"] if r["free_ms"] > 0 else math.nan
+        kf = r.get("known_free_ms", math.nan)
+        rk = r["aware_ms"] / kf if kf > 0 else math.nan
         out.append(f"| {r['case']} | {r['K']:g} | {r['start']} | {r['linear_ms']:.3f} ms | {r['aware_ms']:.3f} ms | "
-                   f"{r['free_ms']:.3f} ms | {ratio:.2f} | {r.get('peak_a', math.nan):.3f} | {r.get('path', '-')} | "
+                   f"{r['free_ms']:.3f} ms | {ratio:.2f} | {kf:.3f} ms | {rk:.2f} | {r.get('peak_a', math.nan):.3f} | "
+                   f"{r.get('path', '-')} | "
                    f"{r.get('ipopt_s', math.nan):.1f} | {r.get('note', '')} |")
     return "\n".join(out)
 

@@ -160,7 +160,9 @@ def test_effect_bench_plays_what_the_bench_table_played(plants):
                       designers={"optimal (linear)": des.linear})
     for label in ("sine", "windowed_sine", "optimal (linear)"):
         e, t = eb.row(label), table.row(label)
-        assert np.array_equal(e.profile.current_a, t.profile.current_a)
+        # the same designer designs the linear seek twice: the second QP is warm-started from the first's
+        # active set, so the two answers agree to the solver's tolerance, not bit for bit
+        np.testing.assert_allclose(e.profile.current_a, t.profile.current_a, rtol=0, atol=1e-9)
         assert e.settle_time_s == t.settle_time_s, label
         assert e.peak_current_a == pytest.approx(t.peak_current_a, abs=1e-9)
         assert e.peak_pes_after_track == pytest.approx(t.peak_pes_after_track, abs=1e-9)

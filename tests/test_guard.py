@@ -9,8 +9,8 @@ from scipy import signal
 from identification.estimate.blind import blind_bands, blind_meta, detectable_gain
 from identification.model.plant import ModalPlant, Mode
 from seekopt.design.designer import SeekDesigner
-from seekopt.design.guard import (GuardBand, band_gains, controller_notches, guard_grid, guard_report, guard_rows,
-                                  merge_bands, plant_blind_bands, plant_gain_curve, problem_bands)
+from seekopt.design.guard import (GuardBand, band_gains, controller_notches, curve_gain, guard_grid, guard_report,
+                                  guard_rows, merge_bands, plant_blind_bands, plant_gain_curve, problem_bands)
 from seekopt.design.problem import SeekProblem
 from seekopt.design.qp import hf_guard_matrix, mode_residual_phasors, mode_residual_rows
 from seekopt.drive.controller import Controller
@@ -216,3 +216,34 @@ def test_missed_notch_mode_on_an_independent_50k_drive():
         r = d.design(K)
         actual = evaluate_profile(truth, ctrl, r.profile).settle_time_s
         assert actual <= 1.2 * r.prediction.worst_metrics.settle_time_s, K
+
+
+def test_blind_bands_belong_to_the_plant_they_were_computed_for():
+    """A 0.3-gain mode at 5 kHz (inside the NSS notch) on a 24-seek log: the blind bands computed for a
+    plant that has the mode say a mode there of more than 0.02 would have been seen, those computed for
+    a plant that lacks it let up to about 0.15 hide (measured 0.018 / 0.148 at 5 kHz).  So the loop,
+    re-identifying the linear plant (which can lose a mode, measured on the loop's kt log: the 5 kHz mode
+    the first identification found at 0.41 was missing after re-identification, and the stale bands
+    guarded 0.10 against a true 0.3), must carry the re-identification's bands, not the previous ones
+    (identification.loop.closing.reidentified_meta)."""
+    from identification.estimate.blind import BLIND_KEYS
+    from identification.loop.closing import reidentified_meta
+    from seekopt.evaluate.synth import SynthConfig, synthesize
+    truth = ModalPlant(k0=3.9e9, modes=[Mode(1738.0, 0.03, 0.02), Mode(5000.0, 0.01, 0.3)], delay_s=1e-5,
+                       sample_rate_hz=FS, track_pitch_nm=254.0)
+    log, truth = synthesize(SynthConfig(n_seeks=24, seed=0, max_tracks=2000.0, rro=False), plant=truth,
+                            controller=Controller.nss())
+    lacks = truth.copy(modes=[m for m in truth.modes if m.freq_hz < 3000.0])
+    has_meta, lacks_meta = blind_meta(log, truth), blind_meta(log, lacks)
+    at5k = {name: curve_gain(plant_gain_curve(truth.copy(meta=m)), [5000.0])[0]
+            for name, m in (("has", has_meta), ("lacks", lacks_meta))}
+    assert at5k["lacks"] > 4 * at5k["has"]
+    assert any(b["lo_hz"] <= 5000.0 <= b["hi_hz"] for b in lacks_meta["blind_bands"])
+    assert not any(b["lo_hz"] <= 5000.0 <= b["hi_hz"] for b in has_meta["blind_bands"])
+    # the re-identified plant's meta: its own identification's bands; the rest of the previous meta kept
+    previous = dict(has_meta, source="user note", log="drive.npz", method="robust")
+    new = reidentified_meta(previous, dict(lacks_meta, log="<arrays>", heldout_fit_percent=90.0))
+    assert all(new[k] == lacks_meta[k] for k in BLIND_KEYS)
+    assert new["source"] == "user note" and new["log"] == "drive.npz" and new["heldout_fit_percent"] == 90.0
+    # a re-identification without blind bands leaves none (stale ones are not kept)
+    assert not set(BLIND_KEYS) & set(reidentified_meta(previous, {"method": "robust"}))

@@ -220,7 +220,11 @@ def test_50k_drive_noise_free_is_identified_exactly():
     """No noise at all: the log is the continuous plant integrated to ~1e-10 (RK4 on a fine grid, exact
     delay and 2x sub-step hold), so every mode, k0, bias and the total delay (plant + computation) must be
     recovered to the estimator's convergence, not to a noise level.  Measured (20 seeks): mode frequencies
-    within 5e-7, damping within 8e-6, gains within 4e-6 (relative), k0 2e-10, delay 1e-8, bias 2e-9.  A
+    within 5e-7, damping within 8e-6, gains within 4e-6 (relative), k0 2e-10, delay 1e-8, bias 2e-9 with an
+    AR-only noise model; with the noise model's two poles at z = 1 (the default) the whitener is fitted to
+    the twice-differenced numerical residual and weights its high-frequency part: modes within 2e-5, k0
+    1.8e-8 (also with 40 refinement steps: a weighting of the ~1e-10 integration error, not a convergence
+    limit).  A
     discretisation error in the estimator's regressors (half a sample of delay, a wrong sub-step hold) shows
     orders of magnitude above these tolerances."""
     drive = drive_50k(noise=False)
@@ -231,7 +235,7 @@ def test_50k_drive_noise_free_is_identified_exactly():
     for m in truth.modes:
         df, dz, dg = errors(p, m)
         assert abs(df) < 1e-5 and abs(dz) < 1e-4 and abs(dg) < 1e-4, (m, df, dz, dg)
-    assert abs(p.k0 / truth.k0 - 1) < 1e-8
+    assert abs(p.k0 / truth.k0 - 1) < 1e-7
     assert abs(p.delay_s / truth.delay_s - 1) < 1e-6
     assert abs(p.bias_a / truth.bias_a - 1) < 1e-6
 

@@ -47,10 +47,11 @@ def _acf(r, lags=(1, 2, 3)):
 def test_final_noise_model_whitens_the_prediction_error():
     """On a closed-loop log of the 36 kHz drive (independent simulator, sensor and force noise),
     the AR noise model fitted to the residual of the unwhitened LS fit leaves the whitened residual
-    correlated at lags 1-3 (measured -0.07: in closed loop the LS coefficients are biased and the AR
-    model whitens their misfit too); fitted to the output error of the whitened estimate (what the
-    final stage does, ``noise_model_passes``) the correlation halves (measured -0.035).  The colour
-    left is the sandwich covariance's business."""
+    correlated at lags 1-3 (measured -0.041 .. -0.051 with the noise model's poles at z = 1, -0.05 ..
+    -0.06 without: in closed loop the LS coefficients are biased and the AR model whitens their
+    misfit too); fitted to the output error of the whitened estimate (what the final stage does,
+    ``noise_model_passes``) the correlation nearly vanishes (measured at most 0.0024 in magnitude;
+    0.009 without the unit poles).  The colour left is the sandwich covariance's business."""
     from std_calibration import drive_36k
     from tests.drives import Noise, Schedule, make_log, modal_plant
     from identification.estimate.identify import _split
@@ -67,8 +68,8 @@ def test_final_noise_model_whitens_the_prediction_error():
     vp_ls, _ = run.problem(data, x)
     vp_pe, _ = run.problem(data, x, noise_from=vp_ls)
     a_ls, a_pe = _acf(vp_ls.solve(x)[2]), _acf(vp_pe.solve(x)[2])
-    assert np.abs(a_ls).min() > 0.05, a_ls
-    assert np.abs(a_pe).max() < 0.6 * np.abs(a_ls).min(), (a_ls, a_pe)
+    assert np.abs(a_ls).min() > 0.03, a_ls
+    assert np.abs(a_pe).max() < 0.25 * np.abs(a_ls).min(), (a_ls, a_pe)
     # the output error of a noise-free fit at the truth is each segment's initial-condition line
     clean = make_log(d, Schedule(n_seeks=10, seed=2), noise_seed=None)
     run = _Run(s, clean, _split(clean, 0)[1], {})
@@ -81,8 +82,9 @@ def test_final_noise_model_whitens_the_prediction_error():
 def test_std_calibration_monte_carlo():
     """12 noise seeds on the 36 kHz drive: the RMS of the normalised errors of frequency and bias is
     not significantly above 1.2 (RMS minus two standard errors; 12 logs leave the RMS uncertain by
-    about 0.1: the 40-seed study measures 1.08 and 0.67); every RMS and mean is printed (README
-    "Operating range" has the 40-seed table and what misses 1.2: damping, gain, k0)."""
+    about 0.1: the 40-seed study measures 1.05 and 0.66); every RMS and mean is printed (README
+    "Operating range" has the 40-seed table: on this drive damping, gain and k0 are within 1.2 too,
+    1.07 / 1.09 / 0.98)."""
     from std_calibration import calibration, summary, table
     recs = calibration("36k", range(12), 60, verbose=False)
     print("\n" + table({"36k": recs}, "std calibration, 12 seeds x 60 seeks, 36 kHz drive"))
@@ -90,3 +92,74 @@ def test_std_calibration_monte_carlo():
     assert s["k0"]["n"] == 12 and s["freq_hz"]["n"] >= 12 * 4
     for k in ("bias_a", "freq_hz"):
         assert s[k]["rms"] - 2 * s[k]["rms_se"] <= 1.2, (k, s[k])
+
+
+def _rigid_drive():
+    """A rigid-body drive of the independent simulator (36 kHz, PID + lead, 9 us delay) whose only
+    noise is white force noise at the plant input (unlogged) plus a little sensor noise: the
+    position noise is the force noise through the double integrator, a random walk of velocity
+    within every seek -- known colour, in closed loop."""
+    from tests.drives import Drive, DigitalController, Noise, pid_lead
+    from tests.drives.plant import TruthPlant
+    fs, k0 = 36000.0, 4.5e9
+    truth = TruthPlant(k0=k0, modes=(), bias_a=-0.003, delay_s=9e-6, track_pitch_nm=120.0)
+    ctrl = DigitalController([pid_lead(k0, fs, 950.0, lead_ratio=14.0, integral_frac=0.1, rolloff_factor=8.0)],
+                             fs, "PID + lead (36 kHz)")
+    return Drive(truth, ctrl, Noise(0.002, 1.5e-4), spindle_hz=120.0, name="rigid 36 kHz")
+
+
+def _k0_z(seed: int, **settings) -> float:
+    """``(k0 - truth) / std`` of the robust method's final fit (its noise model, refinement and
+    covariance) of the rigid drive's log with noise seed ``seed``."""
+    from tests.drives import Schedule, make_log
+    from identification.estimate.identify import _split
+    from identification.estimate.robust import _Run
+    from identification.estimate.settings import RobustSettings
+    d = _rigid_drive()
+    log = make_log(d, Schedule(n_seeks=16, seed=seed), noise_seed=seed)
+    s = RobustSettings(**settings)
+    run = _Run(s, log, _split(log, 0)[1], {})
+    x = np.array([d.plant.delay_s / log.dt])
+    vp, _ = run.problem((0, None, run.segs), x)
+    x = run.refine(vp, x, s.final_nfev)
+    vp, _ = run.problem((0, None, run.segs), x, noise_from=vp)
+    x = run.refine(vp, x, s.final_nfev)
+    cov = run.covariance(vp, x)[0]
+    c = vp.solve(x)[1]
+    return float((c[0] - d.plant.k0) / np.sqrt(cov[len(x), len(x)]))
+
+
+def test_k0_std_calibrated_under_force_noise():
+    """Over 24 noise seeds of the rigid drive (force noise through the double integrator, closed
+    loop), k0's normalised error has RMS within [0.6, 1.6] and mean within +-0.8 (for 24 draws of a
+    standard normal: RMS in [0.68, 1.3] and |mean| < 0.67 with probability 0.999).  An AR(32) noise
+    model fitted to per-seek detrended output error cannot place the random walk's two poles at
+    z = 1: with them not imposed (``noise_unit_poles=0``) the RMS was 2.9 on the 36 kHz drive
+    (studies/std_calibration.py's drive, force noise only, true mode set)."""
+    z = np.array([_k0_z(seed) for seed in range(24)])
+    rms, mean = _rms(z), float(z.mean())
+    print(f"\nk0 z over 24 seeds: RMS {rms:.2f}, mean {mean:+.2f}")
+    assert 0.6 <= rms <= 1.6, z
+    assert abs(mean) <= 0.8, z
+
+
+def test_unit_pole_whitener_keeps_the_bias_column():
+    """With the noise model's poles at z = 1 the whitener maps every per-seek ``p0 + v0 t`` to 0
+    (:attr:`VarPro.affine_free`): nothing is projected out again, and a constant force (a constant
+    after the double difference) stays identifiable -- on a noise-free log the fit returns k0 and
+    the bias exactly."""
+    from tests.drives import Noise, Schedule, make_log
+    from identification.estimate.identify import _split
+    from identification.estimate.robust import _Run
+    from identification.estimate.settings import RobustSettings
+    d = _rigid_drive()
+    d.noise = Noise(1e-7, 0.0)
+    log = make_log(d, Schedule(n_seeks=8, seed=1), noise_seed=1)
+    run = _Run(RobustSettings(), log, _split(log, 0)[1], {})
+    x = np.array([d.plant.delay_s / log.dt])
+    vp, _ = run.problem((0, None, run.segs), x)
+    assert vp.affine_free and vp.ar[:3] @ [1, 1, 1] != 0
+    assert abs(vp.ar.sum()) < 1e-9 and abs(np.arange(len(vp.ar)) @ vp.ar) < 1e-6
+    c = vp.solve(x)[1]
+    assert c[0] / d.plant.k0 - 1 == pytest.approx(0.0, abs=1e-6)
+    assert c[1] / c[0] == pytest.approx(d.plant.bias_a, rel=1e-4)

@@ -37,7 +37,12 @@ from identification.estimate.varpro import ar_whitener
 from identification.logs.seeklog import SeekLog, segment_seeks
 from identification.model.plant import ModalPlant
 
-__all__ = ["Detectability", "detectable_gain", "blind_bands", "blind_meta"]
+__all__ = ["Detectability", "detectable_gain", "blind_bands", "blind_meta", "BLIND_KEYS"]
+
+#: the ``plant.meta`` entries :func:`blind_meta` writes: they describe what the log could not show *about
+#: that plant* (a band next to one of its modes is narrow, a mode it lacks widens it), so they travel
+#: with the identification that computed them, never onto a plant identified again
+BLIND_KEYS = ("blind_bands", "blind_detect", "detectable_gain_curve")
 
 
 @dataclass

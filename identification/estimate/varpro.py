@@ -58,6 +58,11 @@ class VarPro:
             raise ValueError("VarPro: no segment long enough")
         self.starts = [a for a, _ in self.segments]
         self.proj = SegmentProjector([(a + p, b) for a, b in self.segments], offsets=[p] * len(self.segments))
+        # a whitener with a double root at z = 1 (sum h_j = sum j h_j = 0) maps every affine signal to 0:
+        # the per-segment p0 + v0 t is then gone from the fit rows and is not projected out again
+        # (that would also remove the bias column, a constant after the double difference)
+        self.affine_free = self.ar is not None and \
+            max(abs(self.ar.sum()), abs(np.arange(len(self.ar)) @ self.ar)) <= 1e-12 * np.abs(self.ar).sum() * len(self.ar)
         self.bias = bias_response(self.n, self.dt, self.starts)
         self.position = np.asarray(position_track, dtype=float)
         # whitening commutes with the (time-invariant) mode filters: whiten the current once
@@ -81,7 +86,7 @@ class VarPro:
         return self._project(self.proj.take(cols))
 
     def _project(self, rows):
-        out = self.proj.project(rows)
+        out = np.asarray(rows, dtype=float) if self.affine_free else self.proj.project(rows)
         if self.Zq is not None:
             out = out - self.Zq @ (self.Zq.T @ out)
         return out

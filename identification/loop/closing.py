@@ -45,7 +45,7 @@ from identification.loop.windows import seek_windows
 from identification.model.plant import ModalPlant
 
 __all__ = ["LoopSettings", "LoopResult", "Step", "close_loop", "evaluate", "split_data", "REPEATABLE",
-           "OUT_OF_LIBRARY", "compensate", "reidentified", "errors", "improved_fraction",
+           "OUT_OF_LIBRARY", "compensate", "reidentified", "reidentified_meta", "errors", "improved_fraction",
            "settled_range", "inside_groups"]
 
 #: candidates that may be accepted more than once
@@ -144,6 +144,20 @@ def _backfit(name: str, cur: _State, fit: Data, val: Data, same: bool, it: int, 
     return step, _State(F.plant, evaluate(F.plant, fit, record=True), rv)
 
 
+def reidentified_meta(previous: dict, identification: dict) -> dict:
+    """``meta`` of a plant identified again: the previous plant's entries (its source, the user's
+    notes) with what the new identification says about the plant it produced (method, held-out fit,
+    and the blind bands and detectable-gain curve, :data:`identification.estimate.blind.BLIND_KEYS`)
+    in place of the previous identification's.  Blind bands belong to the plant they were computed
+    for: next to a mode that plant has, a band is narrow; a re-identified plant that lacks the mode
+    (e.g. one in a controller notch that the fewer, compensated seeks do not reveal) needs the wide
+    band its own identification found, or the designer's guard trusts a mode that is not modelled."""
+    from identification.estimate.blind import BLIND_KEYS
+    meta = {k: v for k, v in (previous or {}).items() if k not in BLIND_KEYS}
+    meta.update({k: v for k, v in (identification or {}).items() if k != "log"})
+    return meta
+
+
 def _reidentify(cur: _State, fit: Data, val: Data, same: bool, it: int, st: LoopSettings, say, notes: list):
     """Backfitting between the linear identification and the effects: identify the linear plant
     on the fit log compensated by the current effects (:func:`compensate`; with held-out seeks
@@ -176,7 +190,8 @@ def _reidentify(cur: _State, fit: Data, val: Data, same: bool, it: int, st: Loop
         except (ValueError, np.linalg.LinAlgError, FloatingPointError) as exc:
             notes.append(f"iteration {it}: re-identification on the compensated log failed ({exc})")
             break
-        new = ident.plant.copy(effects=[effect_from_dict(e.to_dict()) for e in kept], meta=dict(cur.plant.meta))
+        new = ident.plant.copy(effects=[effect_from_dict(e.to_dict()) for e in kept],
+                               meta=reidentified_meta(cur.plant.meta, ident.plant.meta))
         state = _State(new, None, evaluate(new, val, same, record=True))
         steps = []
         for name in dict.fromkeys(e.name for e in new.effects):
