@@ -107,17 +107,19 @@ def better_paper(plant, truth, ctrl, K) -> float:
                                 settle=BAND, k0_for_tbb=plant.k0).settle_time_s for kind in ("sine", "windowed_sine"))
 
 
-def family_study(ks, cache: Path):
+def family_study(ks, cache: Path, options=None):
     ctrl = Controller.nss()
     truths = family_truths()
     ident = {name: identified(name, truths[name], seed, cache) for name, *_, seed in MEMBERS}
     room = ident["room"]
     # each member's drive calibrates its feedforward to its own identified gain
     members = {n: calibrated(truths[n], room.k0, ident[n].k0) for n in truths}
-    designs = {"room plant, default drift": SeekProblem(room, ctrl, IMAX, BAND, robust=Drift()),
+    nf = dict(options or {})
+    designs = {"room plant, default drift": SeekProblem(room, ctrl, IMAX, BAND, robust=Drift(), **nf),
                "family (3 identified plants)": SeekProblem(room, ctrl, IMAX, BAND, robust=Drift(),
-                                                           family=[ident["cold"], ident["hot"]]),
-               f"room plant, --drift {DRIFT}": SeekProblem(room, ctrl, IMAX, BAND, robust=Drift.from_string(DRIFT))}
+                                                           family=[ident["cold"], ident["hot"]], **nf),
+               f"room plant, --drift {DRIFT}": SeekProblem(room, ctrl, IMAX, BAND, robust=Drift.from_string(DRIFT),
+                                                           **nf)}
     rows, pred_rows, summary = [], [], {}
     base = {(n, K): better_paper(room, members[n], ctrl, K) for n in members for K in ks}
     for label, prob in designs.items():
@@ -147,7 +149,7 @@ def family_study(ks, cache: Path):
                               f"{ar * 1e3:.3f} ({ar / pw:.2f})", f"{aw * 1e3:.3f} ({aw / pw:.2f})",
                               f"{g.worst_band:.2f} at {g.worst_hz:.0f} Hz" if g else "-"])
             summary[(label, K)] = {"ratio": ratio, "tbb_room": act["room"].settle_time_s / tbb,
-                                   "pred_ratio": aw / pw, "pred_ratio_room": ar / pw}
+                                   "pred_ratio": aw / pw, "pred_ratio_room": ar / pw, "pred_worst_tbb": pw / tbb}
             print(rows[-1], pred_rows[-1], flush=True)
     ident_rows = []
     for name, *_ in MEMBERS:
@@ -163,7 +165,7 @@ def family_study(ks, cache: Path):
     return rows, pred_rows, ident_rows, summary
 
 
-def nss_study(cache: Path, ks=(200.0, 1000.0)):
+def nss_study(cache: Path, ks=(200.0, 1000.0), options=None):
     ctrl = Controller.nss()
     truth = default_truth_plant()
     path = cache / "nss_default.json"
@@ -182,7 +184,7 @@ def nss_study(cache: Path, ks=(200.0, 1000.0)):
                 "nominal (no robust set)": None}
     rows, out = [], {}
     for label, rob in variants.items():
-        des = SeekDesigner(SeekProblem(p, ctrl, IMAX, BAND, robust=rob))
+        des = SeekDesigner(SeekProblem(p, ctrl, IMAX, BAND, robust=rob, **(options or {})))
         for K in ks:
             t0 = time.perf_counter()
             res = des.design(K)
@@ -191,7 +193,7 @@ def nss_study(cache: Path, ks=(200.0, 1000.0)):
             pw = res.prediction.worst_metrics.ratio_tbb if res.prediction else res.metrics.ratio_tbb
             rows.append([label, f"{K:g}", f"{res.metrics.ratio_tbb:.2f}", f"{pw:.2f}"] + [f"{v:.2f}" for v in r.values()]
                         + [f"{res.guard.worst_band:.2f}" if res.guard else "-", f"{len(des.plants)}", f"{dt:.0f}"])
-            out[(label, K)] = r
+            out[(label, K)] = dict(r, pred_worst=pw)
             print(rows[-1], flush=True)
     return rows, out
 
@@ -201,6 +203,9 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="K = 10, 200 only")
     ap.add_argument("--cache", default="/tmp/seekopt_operating_range")
     ap.add_argument("--no-readme", action="store_true")
+    ap.add_argument("--before-after", action="store_true",
+                    help="also design as before this change (inputs end at the settle sample, every plant's band "
+                         "from one sample: input_tail_s=0, nominal_first=False) and tabulate both")
     a = ap.parse_args(argv)
     cache = Path(a.cache)
     cache.mkdir(parents=True, exist_ok=True)
@@ -208,6 +213,8 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     rows, pred, ident, summary = family_study(ks, cache)
     nss_rows, nss = nss_study(cache)
+    old = {"input_tail_s": 0.0, "nominal_first": False}
+    before = (family_study(ks, cache, old)[3], nss_study(cache, options=old)[1]) if a.before_after else None
     names = [n for n, *_ in MEMBERS]
     text = [
         "### Measured (`studies/operating_range.py`)",
@@ -252,8 +259,30 @@ def main(argv=None) -> int:
                    f"{max(summary[(lab, K)]['pred_ratio_room'] for K in ks if (lab, K) in summary):.2f}"]
                   for lab in dict.fromkeys(k[0] for k in summary)]),
         "",
-        f"Study wall time {time.perf_counter() - t0:.0f} s (machine shared).",
     ]
+    if before is not None:
+        text += ["Before / after (same identified plants, one run). Before: the inputs end at the settle sample and "
+                 "every plant of the set holds the band from that sample (`input_tail_s=0, nominal_first=False`). "
+                 "After: the feedforward and reference may go on 0.3 ms after the settle sample "
+                 "(`SeekProblem.input_tail_s`) and the design is lexicographic (`nominal_first`: the set's worst "
+                 "seek-settle time first, then, holding it, the nominal plant's). T_settle / T_bb on the room "
+                 "member, worst over the members of (T_settle / better paper profile), predicted worst over the "
+                 "set / T_bb:", "",
+                 md_table(["design", "K", "room /T_bb before", "after", "worst /paper before", "after",
+                           "pred worst /T_bb before", "after"],
+                          [[lab, f"{K:g}"] + [f"{d[(lab, K)][key]:.2f}" if key != "ratio" else
+                                              f"{max(d[(lab, K)]['ratio'].values()):.2f}"
+                                              for key in ("tbb_room", "ratio", "pred_worst_tbb") for d in (before[0], summary)]
+                           for (lab, K) in summary if (lab, K) in before[0]]), "",
+                 "NSS-like default drive, before / after (T_settle / T_bb on the truth, on the truth with its "
+                 "seek-induced modes -5 % / +5 %, predicted worst over the set):", "",
+                 md_table(["design", "K", "truth before", "after", "seek -5 % before", "after", "seek +5 % before",
+                           "after", "pred worst before", "after"],
+                          [[lab, f"{K:g}"] + [f"{d[(lab, K)][key]:.2f}" for key in
+                                              ("truth", "seek modes -5 %", "seek modes +5 %", "pred_worst")
+                                              for d in (before[1], nss)]
+                           for (lab, K) in nss if (lab, K) in before[1]]), ""]
+    text += [f"Study wall time {time.perf_counter() - t0:.0f} s (machine shared)."]
     text = "\n".join(text)
     print(text)
     if not a.no_readme:

@@ -109,7 +109,7 @@ def test_nominal_qp_on_its_free_variables_answers_as_the_full_qp(setup):
         verdicts.add(f.success)
         if f.success:
             assert np.allclose(f.x, r.x, atol=1e-6)
-            assert np.all(r.x[n:qp.N] == 0.0)                   # pinned samples past the seek
+            assert np.all(r.x[n + qp.input_tail:qp.nin] == 0.0)   # pinned samples past the inputs (settle + tail)
     assert verdicts == {True, False}
 
 

@@ -141,7 +141,9 @@ def test_family_design_holds_every_member_and_says_which_binds():
     fam = SeekDesigner(SeekProblem(nom, ctrl, 0.3, robust=None, family=members, **kw)).design(50.0)
     pred = fam.prediction
     assert pred.labels == ["nominal", "member 1", "member 2"]
-    N = fam.settle_samples
+    N = fam.set_settle_samples      # every plant of the set holds the band from here (the nominal from settle_samples)
+    assert fam.settle_samples <= N and fam.profile.seek_samples == N + round(3e-4 * FS)   # inputs go on 0.3 ms
+    assert pred.nominal.settle_time_s * FS <= fam.settle_samples + 1 + 1e-9
     for lab, m in pred.members():
         assert m.settle_time_s * FS <= N + 1 + 1e-9, lab
     assert pred.labels[pred.binding] in pred.labels and 0 <= pred.worst < 3
@@ -256,3 +258,38 @@ def test_plants_differing_only_in_calibration_stay_in_the_set():
     assert set_identity(a) == set_identity(p.copy(meta={"set_label": "b", "ff_scale": 1.01}))
     assert set_identity(a) != set_identity(p.copy(meta={"set_label": "a", "ff_scale": 0.99}))
     assert set_identity(p) == set_identity(p.copy(meta={"ff_scale": 1.0}))
+
+
+def test_inputs_after_the_settle_sample_hold_every_plant_and_settle_no_later():
+    """``input_tail_s``: the feedforward and reference go on after the settle sample (the seek-settle time
+    counts |PES| only).  Every plant of the set still holds the band from the design's settle sample when
+    the simulator plays it; the profile's ``seek_samples`` counts its inputs; the set settles no later than
+    with inputs that end at the settle sample (K = 200 on the NSS-like plant: earlier)."""
+    ctrl, K = Controller.nss(), 200.0
+    p = plant()
+    old = SeekDesigner(SeekProblem(p, ctrl, 0.3, robust=Drift(), input_tail_s=0.0, nominal_first=False)).design(K)
+    new = SeekDesigner(SeekProblem(p, ctrl, 0.3, robust=Drift())).design(K)
+    tail = round(3e-4 * FS)
+    assert old.profile.seek_samples == old.settle_samples == old.set_settle_samples
+    assert new.profile.seek_samples == new.set_settle_samples + tail
+    assert new.settle_samples <= new.set_settle_samples < old.settle_samples
+    assert new.prediction.nominal.settle_time_s * FS <= new.settle_samples + 1 + 1e-9
+    for lab, m in zip(new.prediction.labels, new.prediction.metrics):
+        assert m.settle_time_s * FS <= new.set_settle_samples + 1 + 1e-9, lab
+    assert new.profile.meta["design_settle_samples"] == new.settle_samples
+
+
+def test_nominal_first_keeps_the_worst_case_and_settles_the_nominal_plant_sooner():
+    """Lexicographic design over a set (``nominal_first``): the set's worst settle sample of the worst-case
+    design is kept, the nominal plant settles no later (here: sooner, inputs ending at the settle sample)."""
+    ctrl, K = Controller.nss(), 200.0
+    p = plant()
+    kw = dict(robust=Drift(), input_tail_s=0.0)
+    worst = SeekDesigner(SeekProblem(p, ctrl, 0.3, nominal_first=False, **kw)).design(K)
+    lex = SeekDesigner(SeekProblem(p, ctrl, 0.3, **kw)).design(K)
+    assert lex.set_settle_samples == worst.settle_samples == lex.profile.seek_samples
+    assert lex.settle_samples < worst.settle_samples
+    assert lex.profile.meta["design_set_settle_samples"] == lex.set_settle_samples
+    assert lex.prediction.nominal.settle_time_s * FS <= lex.settle_samples + 1 + 1e-9
+    for lab, m in zip(lex.prediction.labels, lex.prediction.metrics):
+        assert m.settle_time_s * FS <= lex.set_settle_samples + 1 + 1e-9, lab

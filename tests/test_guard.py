@@ -185,6 +185,7 @@ def test_blind_bands_and_meta():
     assert all(b["lo_hz"] < b["hi_hz"] for b in bands)
     curve = meta["detectable_gain_curve"]
     assert len(curve) > 20 and curve[0][0] == pytest.approx(100.0)
+    assert curve[-1][0] == pytest.approx(0.47 * FS, abs=0.1)     # up to the end of the search range
     # the stated gain decides what is blind: a huge one leaves only the band above the search range
     assert [b["reason"] for b in blind_bands(log, truth, gain=1e3)] == ["above the identification range"]
 

@@ -223,7 +223,10 @@ def blind_meta(log: SeekLog, plant: ModalPlant, gain: float = 0.05, *, t_min: fl
     bands = blind_bands(log, plant, gain, t_min=t_min, freq_range=freq_range, zeta=zeta, detect=det)
     f, g = det.freqs_hz, det.min_gain
     step = max(int(round(24 / curve_points_per_octave)), 1)
-    curve = [[round(float(a), 1), (float(f"{b:.4g}") if math.isfinite(b) else None)] for a, b in zip(f[::step], g[::step])]
+    # every step-th point and the last one: the curve reaches the end of the search range (without it the
+    # guard took the last 1/6 octave below 0.47 fs as unbounded: unit gain in a notch there)
+    idx = np.unique(np.r_[np.arange(0, f.size, step), f.size - 1]) if f.size else np.arange(0)
+    curve = [[round(float(f[i]), 1), (float(f"{g[i]:.4g}") if math.isfinite(g[i]) else None)] for i in idx]
     return {"blind_bands": bands, "blind_detect": {"gain": float(gain), "t_min": float(t_min), "zeta": float(zeta),
                                                    "calibration": round(float(det.calibration), 3)},
             "detectable_gain_curve": curve}

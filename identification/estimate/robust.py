@@ -17,7 +17,8 @@ b. Joint output-error fit of the measured position to the measured current over 
    position): the residual is prewhitened by an AR(``ar_order``) model of the first fit's residual
    -- the direct prediction-error method with an AR noise model, consistent in closed loop when
    the noise model whitens the residual, and near-efficient.  Modes the settle windows do not show
-   are found by a scan of the whitened residual over a frequency grid (the residual-sum-of-squares
+   are found by a scan of the whitened residual over a frequency grid stepped by the scanned
+   damping (and finer around lightly damped poles of the noise model; the residual-sum-of-squares
    reduction of one more mode, refined on a finer local grid, added while significant), and modes
    whose gain is not significant (``|g| / std < t_min``) are dropped.  A repeatable run-out (period
    detected in the residual of the model with its modes, :func:`identification.estimate.varpro.detect_period`)
@@ -68,6 +69,7 @@ from identification.estimate.pencil import matrix_pencil, stabilisation_diagram
 from identification.estimate.prony import z_to_modal
 from identification.estimate.result import Identification
 from identification.estimate.rigid import momentum_bias, rigid_fit, whole_log_bias
+from identification.estimate.scangrid import scan_grids
 from identification.estimate.settings import RobustSettings
 from identification.estimate.varpro import VarPro, ar_whitener, detect_period, fir_filter, periodic_columns
 from identification.logs.seeklog import SeekLog, segment_seeks
@@ -158,8 +160,6 @@ class _Run:
         self.added: list[tuple] = []         # (freq_hz, zeta, statistic) of each mode the scan proposed
         self.runout_hz = 0.0                 # fundamental of the detected run-out [Hz] (0: none)
         self.nuisance_period = None          # run-out period [samples] once detected
-        s = settings
-        self.grid = np.exp(np.arange(math.log(self.lo), math.log(self.hi), math.log(1.0 + s.scan_step_rel)))
         self.clock = time.perf_counter()
 
     def lap(self, name: str) -> None:
@@ -227,30 +227,40 @@ class _Run:
         return x
 
     # ----------------------------------------------------------------------- the scan for missed modes
-    def _peaks(self, vp: VarPro, x):
-        """Grid indices of the best scan peaks of this round (see :meth:`search`) and the residual variance."""
+    def scan_grids(self, vp: VarPro) -> list[tuple[float, np.ndarray]]:
+        """The scan's ``[(zeta, frequencies [Hz]), ...]`` for ``vp`` (:func:`identification.estimate.scangrid.scan_grids`)."""
+        return scan_grids(self.s, vp.ar, self.lo, self.hi, self.fs)
+
+    def _peaks(self, vp: VarPro, x, grids):
+        """Frequencies [Hz] of the best scan peaks of this round (see :meth:`search`) on ``grids``
+        (:meth:`scan_grids`) and the residual variance."""
         s, R = self.s, _n_modes(x)
-        stat, r = vp.scan(x, self.grid, s.scan_zetas)
+        freqs, best, r = [], [], None
+        for zt, grid in grids:
+            stat, r = vp.scan(x, grid, (zt,))
+            freqs.append(grid)
+            best.append(stat[:, 0])
+        freqs, best = np.concatenate(freqs), np.concatenate(best)
         s2 = float(r @ r) / max(len(r) - R - 2, 1)
-        best = stat.max(axis=1) / s2
+        best = best / s2
         for f0 in self.tabu:                        # not again where a mode was proposed or dropped
-            best[np.abs(self.grid / f0 - 1) < s.tabu_sep_rel] = 0.0
+            best[np.abs(freqs / f0 - 1) < s.tabu_sep_rel] = 0.0
         for f0 in np.exp(x[:R]):                    # nor where one is
-            best[np.abs(self.grid / f0 - 1) < s.existing_sep_rel] = 0.0
+            best[np.abs(freqs / f0 - 1) < s.existing_sep_rel] = 0.0
         new = []
         for i in np.argsort(best)[::-1]:           # the best peaks, scan_peak_sep_rel apart
             if best[i] <= s.scan_gate * s.t_min ** 2 or len(new) >= min(s.scan_max_new, s.max_modes - R):
                 break
-            if all(abs(self.grid[i] / self.grid[j] - 1) > s.scan_peak_sep_rel for j in new):
-                new.append(i)
+            if all(abs(freqs[i] / f0 - 1) > s.scan_peak_sep_rel for f0 in new):
+                new.append(float(freqs[i]))
         return new, s2
 
-    def _proposals(self, vp: VarPro, x, peaks, s2):
-        """Each peak refined on a fine local grid: ``[(freq_hz, zeta, statistic), ...]``."""
+    def _proposals(self, vp: VarPro, x, centres, s2):
+        """Each peak (``centres`` [Hz]) refined on a fine local grid: ``[(freq_hz, zeta, statistic), ...]``."""
         s, props = self.s, []
         span = s.scan_fine_span_rel
-        for i in peaks:
-            fl = self.grid[i] * np.exp(np.linspace(-span, span, s.scan_fine_points))
+        for fc in centres:
+            fl = fc * np.exp(np.linspace(-span, span, s.scan_fine_points))
             st = vp.scan(x, fl, s.scan_fine_zetas)[0]
             k, j = np.unravel_index(int(np.argmax(st)), st.shape)
             if all(abs(fl[k] / f0 - 1) > s.scan_proposal_sep_rel for f0, _, _ in props) and \
@@ -262,11 +272,12 @@ class _Run:
         """Add the modes the whitened residual shows (a scan over the frequency grid, the best
         peaks refined and added, then refit and prune) until ``scan_idle_rounds`` rounds add none."""
         s, idle = self.s, 0
+        grids = self.scan_grids(vp)                 # vp's noise model is fixed over the rounds
         for _ in range(s.max_modes):
             R0 = _n_modes(x)
             if not s.scan or R0 >= s.max_modes:
                 break
-            peaks, s2 = self._peaks(vp, x)
+            peaks, s2 = self._peaks(vp, x, grids)
             if not peaks:
                 break
             for f0, zt, st in self._proposals(vp, x, peaks, s2):

@@ -144,6 +144,11 @@ class RobustSettings(IdentifySettings):
         by 2-4 std), ``scan_max_new`` (peaks tried per
         round), ``scan_peak_sep_rel`` (least separation of the peaks tried in one round),
         ``scan_fine_span_rel`` / ``scan_fine_points`` (the fine grid around a peak: +-span in ln f, points),
+        ``scan_step_zeta`` (the grid of the scan column of damping ``zeta`` is stepped by
+        ``min(scan_step_rel, scan_step_zeta zeta)``: a lightly damped mode's statistic is a spike about
+        its bandwidth wide), ``scan_ar_zeta_max`` (the scan also looks around each pole of the AR noise
+        model damped less than this [-], at relative steps of ``scan_step_zeta`` times the pole's
+        damping: a lightly damped mode the noise model absorbed leaves a spike that narrow; 0 disables),
         ``scan_proposal_sep_rel`` (least separation of refined proposals), ``tabu_sep_rel`` (no
         proposal this close to a frequency proposed or dropped before), ``existing_sep_rel`` (nor
         this close to a fitted mode), ``scan_idle_rounds`` (rounds without a new mode that stop
@@ -186,6 +191,8 @@ class RobustSettings(IdentifySettings):
     scan_peak_sep_rel: float = 0.05
     scan_fine_span_rel: float = 0.02
     scan_fine_points: int = 17
+    scan_step_zeta: float = 0.5
+    scan_ar_zeta_max: float = 0.05
     scan_proposal_sep_rel: float = 0.03
     tabu_sep_rel: float = 0.01
     existing_sep_rel: float = 0.02
@@ -211,5 +218,8 @@ class RobustSettings(IdentifySettings):
             raise ValueError(f"noise_unit_poles must be a non-negative integer, got {self.noise_unit_poles!r}")
         if not isinstance(self.ar_order, numbers.Integral) or self.ar_order < 0:
             raise ValueError(f"ar_order must be a non-negative integer, got {self.ar_order!r}")
+        for name in ("scan_step_rel", "scan_step_zeta"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be positive, got {getattr(self, name)!r}")
         if not 0 < self.freq_high_fraction < 0.5:
             raise ValueError(f"freq_high_fraction must lie in (0, 0.5) (below Nyquist), got {self.freq_high_fraction!r}")

@@ -4,20 +4,23 @@ Fitted in two stages: a fast model on the measured signals (a head at rest holds
 applied force is below the Coulomb level), then the bias and the Coulomb level refined by
 ``DiscretePlant`` simulation -- when the head sticks only the model's own state reproduces
 the friction force, and the rigid body turns a 1e-6 A bias error into a visible position
-error.  Units: tracks, A, s.
+error.  With a position-bias table in the plant its shape is refined by simulation too
+(:func:`sim_refine_table`): a head held by friction does not feel a change of the table, so
+the table's own (linear, penalised) fit cannot correct where the head dwells, and a table
+fitted before friction was modelled keeps what sticking made of it.  Units: tracks, A, s.
 """
 from __future__ import annotations
 
 import numpy as np
 from scipy.optimize import minimize, minimize_scalar
 
-from identification.loop.fit_engine import Data, Engine, Fit, linear_fit, rebase, refit_base
+from identification.loop.fit_engine import Data, Engine, Fit, hats, linear_fit, rebase, refit_base
 from identification.loop.residual import simulate
 from identification.loop.stats import lstsq
-from identification.model.effects import Friction
+from identification.model.effects import Friction, PositionBias
 from identification.model.plant import ModalPlant
 
-__all__ = ["fit_friction", "sim_refine", "polish"]
+__all__ = ["fit_friction", "sim_refine", "sim_refine_table", "polish"]
 
 
 def _friction_force(c, vis, bias, u_del, v, moving, other=0.0):
@@ -57,7 +60,9 @@ def fit_friction(plant, data, settings):
     full = np.r_[th[0], 0.0, th[1:]]
     p = rebase(plant.copy(bias_a=bb), full, eng.setters, effects=plant.effects + [Friction(float(cc), float(vv))])
     # 2. bias and Coulomb level by simulation (the rigid body integrates 1e-6 A errors visibly)
-    p = sim_refine(p, data.subset(settings.search_samples))
+    sub = data.subset(settings.search_samples)
+    p = sim_refine(p, sub)
+    p = sim_refine_table(p, sub, settings.friction_table_knots, settings.friction_table_evals)
     p = polish(p, data, 1, bias=False)
     return Fit("friction", p, 2, p.effects[-1].params,
                "fast sticking model, then bias and Coulomb level refined by DiscretePlant simulation")
@@ -97,6 +102,41 @@ def sim_refine(plant: ModalPlant, data: Data, rounds=("bias", "coulomb", "bias")
         if best:
             plant = make(best)
     return plant
+
+
+def sim_refine_table(plant: ModalPlant, data: Data, knots: int = 5, max_evals: int = 150) -> ModalPlant:
+    """Shape of the plant's position-bias table and the last effect's (friction) Coulomb level,
+    refined jointly by ``DiscretePlant`` simulation (Powell on the output-error sum of squares of
+    ``data``).  The table gets a correction ``coulomb * sum_j x_j hat_j(p)`` on ``knots`` equally
+    spaced coarse knots over the positions of ``data``'s windows (held constant beyond them), the
+    Coulomb level a factor ``1 + x``.  Returns ``plant`` unchanged without a table, with
+    ``knots`` 0, or when the search does not lower the cost."""
+    idx = [i for i, e in enumerate(plant.effects) if isinstance(e, PositionBias)]
+    if not idx or knots <= 0 or max_evals <= 0:
+        return plant
+    i_tab, tab, fr = idx[-1], plant.effects[idx[-1]], plant.effects[-1]
+    c = fr.coulomb_a
+    if c <= 0.0:
+        return plant
+    kn, v0 = np.asarray(tab.knots_track, float), np.asarray(tab.bias_a, float)
+    pos = data.log.position_track[data.windows.index()]
+    H = np.array(hats(kn, np.linspace(float(pos.min()), float(pos.max()), max(int(knots), 2))))   # (K, knots)
+    K = len(H)
+
+    def make(x):
+        eff = list(plant.effects)
+        eff[i_tab] = PositionBias([float(k) for k in kn], [float(b) for b in v0 + c * (x[:K] @ H)])
+        eff[-1] = Friction(float(max(c * (1.0 + x[K]), 0.0)), fr.viscous_a_per_tps)
+        return plant.copy(effects=eff)
+
+    def cost(x):
+        e = simulate(make(x), data.log, data.windows, passes=1, continuous=False, grid=data.grid,
+                     cache=data.cache).e
+        return float(e @ e)
+    x0 = np.zeros(K + 1)
+    f0 = cost(x0)
+    r = minimize(cost, x0, method="Powell", options={"xtol": 2e-3, "ftol": 1e-4, "maxfev": int(max_evals)})
+    return make(r.x) if r.fun < f0 else plant
 
 
 def polish(plant: ModalPlant, data: Data, iters: int = 2, bias: bool = True) -> ModalPlant:

@@ -54,6 +54,11 @@ class LoopSettings:
         Knots of the position-bias table over the positions the logs visit [-].
     search_samples : int
         Samples of the fit data used by the nonlinear searches (every k-th seek) [-].
+    friction_table_knots : int
+        Coarse knots (over the fitted positions) of the bias-table shape correction that the
+        friction fit refines by simulation when the plant has a position-bias table (0: none) [-].
+    friction_table_evals : int
+        Simulations that refinement may spend (Powell) [-].
 
     Evidence
 
@@ -80,6 +85,8 @@ class LoopSettings:
     damped_mode_zeta: float = 0.3
     bias_knots: int = 65
     search_samples: int = 8000
+    friction_table_knots: int = 5
+    friction_table_evals: int = 150
     false_alarm: float = 0.01
     unexplained_p: float = 1e-4
     unexplained_min_val_drop: float = 0.02

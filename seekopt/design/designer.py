@@ -111,6 +111,9 @@ class SeekDesigner:
         self.guard_bands = _guard.problem_bands(p)     # Nyquist, controller notches, blind bands
         self.guard_curve = _guard.plant_gain_curve(p.plant)   # what the identification could have seen
         self.slew = p.slew_a_per_s
+        # minimum seek-settle designs: the inputs may go on this many samples after the settle sample
+        # (objective (a) and the shortest-feasible probe keep the seek length they are given)
+        self.input_tail = max(int(round(p.input_tail_s * self.fs)), 0)
         self.check_robust = p.check_robust
         self.max_samples = int(p.solver.max_samples)
         self.thin_above, self.thin_stride = p.solver.thin_above_samples, p.solver.thin_stride
@@ -161,14 +164,17 @@ class SeekDesigner:
                 imp = np.zeros(H); imp[0] = 1.0
                 hm = reference_from_model(self._reference_model(), imp, self.fs, H)
                 R = _qp.toeplitz_rows(hm, np.arange(H), H)
-            hf = _guard.design_guard_rows(self.guard_bands, self.plant.k0, self.fs, nmax, H, maps[0],
+            in_tail = 0 if epigraph else self.input_tail
+            # the grid follows the inputs' length: their spectrum's lobes are fs / (nmax + in_tail) wide
+            hf = _guard.design_guard_rows(self.guard_bands, self.plant.k0, self.fs, nmax + in_tail, H, maps[0],
                                           curve=self.guard_curve)
             band_plants = range(len(self.plants)) if self.objective_kind == "worst" else [0]
             s = self.settings
             self._qps[key] = _qp.SeekQP(
                 maps, nmax, H, self.imax, self.settle, self.fs, band_plants,
                 lambda n, m: SolverChain(n, m, s.chain, s.options, builds=self._count_solver),
-                epigraph=epigraph, R=R, hf=hf, slew=self.slew, stride=self._stride(nmax))
+                epigraph=epigraph, R=R, hf=hf, slew=self.slew, stride=self._stride(nmax),
+                input_tail=in_tail)
             self.builds += 1
         return self._qps[key]
 
@@ -192,9 +198,10 @@ class SeekDesigner:
                                         pad=s.qp_solver != DAQP_PKG)
         return self._ws[qp]
 
-    def _solve(self, qp: _qp.SeekQP, K, n, beta, stats: SolveStats, warm=None, epigraph=False, confirm=True):
+    def _solve(self, qp: _qp.SeekQP, K, n, beta, stats: SolveStats, warm=None, epigraph=False, confirm=True,
+               nominal_from=None):
         hf_tol = self.hf_tol if self.guard_bands else None
-        args = (K, n, None if epigraph else beta, self.gamma, hf_tol, self.slew)
+        args = (K, n, None if epigraph else beta, self.gamma, hf_tol, self.slew, nominal_from)
         tol = self.settings.violation_tol
         bounds = qp.bounds(*args)
 
@@ -203,7 +210,8 @@ class SeekDesigner:
             return f"constraint violation {viol:.2g}" if viol > tol else ""
         if self.settings.working_set:     # rows screened on a plant set and big structures, else all rows
             screen = len(self.plants) > 1 or qp.m >= WORKING_SET_MIN_ROWS
-            sol = self._working_set(qp).solve(*args, x0=warm, check=check, confirm=confirm, screen=screen)
+            sol = self._working_set(qp).solve(*args[:-1], x0=warm, check=check, confirm=confirm, screen=screen,
+                                              nominal_from=nominal_from)
             if getattr(sol, "unconfirmed", False):
                 stats.unconfirmed.add((id(qp), n))
         else:
@@ -392,12 +400,52 @@ class SeekDesigner:
             except DesignError:
                 continue
             self._history[max(n_rigid, 1)] = N
-            return res
+            return self._nominal_first(qp, best, K, N, stats, max(n_rigid - 2, 0)) or res
         raise DesignError(f"no design for {K:g} tracks passed the simulator check up to {c} samples")
 
+    def _nominal_first(self, qp, best, K, N, stats: SolveStats, lo: int):
+        """Lexicographic second stage of the minimum seek-settle design over a plant set: the set's worst
+        seek-settle ``N`` (the first stage, every plant's band from ``N`` on) is kept, and among the
+        designs that hold it, the one whose nominal plant settles first (its band rows from ``n0 < N``
+        on, the seek still ``N`` samples long; every other plant keeps its rows from ``N``).  The worst
+        case over the set is no later than the first stage's, the nominal plant no later; the same margins,
+        guard and currents.  Returns the verified design, or None (nothing earlier: keep the first stage's)."""
+        if len(self.plants) < 2 or not self.problem.nominal_first or N - 1 <= lo:
+            return None
+
+        def probe(n0, warm=None, confirm=True):
+            return self._solve(qp, K, N, self.beta, stats, warm=warm, confirm=confirm, nominal_from=n0)
+        s = probe(N - 1, best.x, True)
+        if not s.success:
+            return None
+        hi, best, step, low = N - 1, s, 1, lo         # gallop down (1, 2, 4, ...), then bisect
+        while hi - step > lo:
+            t = probe(hi - step, best.x, False)
+            if not t.success:
+                low = hi - step
+                break
+            hi, best, step = hi - step, t, 2 * step
+        n0, best = bisect_length(probe, low, hi, best, lambda n: False, floor=lo)
+        for n in range(n0, N):            # the simulator decides; step up on failure
+            if n != n0:
+                best = probe(n, best.x, True)
+                if not best.success:
+                    continue
+            try:
+                return self._finish(qp, best, K, N, stats, f"min_settle/{self.objective_kind}/nominal_first",
+                                    strict=True, settle_n=n)
+            except DesignError:
+                continue
+        return None
+
     # ------------------------------------------------------------------ verification
-    def _finish(self, qp, sol, K, N, stats: SolveStats, objective, strict) -> DesignResult:
-        u, r = qp.unpack(sol.x, K, N)
+    def _finish(self, qp, sol, K, N, stats: SolveStats, objective, strict, settle_n=None) -> DesignResult:
+        """Verify and package the design whose set holds the band from sample ``N`` on (its inputs are
+        ``N`` plus the structure's ``input_tail`` samples long); ``settle_n`` (default ``N``): the sample the
+        nominal plant's band holds from (:meth:`_nominal_first`), checked by the simulator when ``strict``."""
+        n_set = N
+        N = N if settle_n is None else int(settle_n)
+        u, r = qp.unpack(sol.x, K, n_set)
         u = exact_rest(u, K, self.plant.k0, self.fs, self.imax)
         if u is None:
             raise DesignError(f"design misses rest at {K:g} tracks")
@@ -405,15 +453,16 @@ class SeekDesigner:
                 **({"family_hashes": ";".join(p.hash() for p in self.problem.family)} if self.problem.family else {}),
                 "design_objective": objective, "solver": self.solver_name, "reference": self.reference,
                 "robust": self.robust.to_string() if self.robust else "none",
-                "band_margin": self.beta, "current_margin": self.gamma, "design_settle_samples": N}
+                "band_margin": self.beta, "current_margin": self.gamma, "design_settle_samples": N,
+                **({"design_set_settle_samples": n_set} if n_set != N else {})}
         if self.ignored_effects:
             meta["effects_not_in_design"] = ";".join(self.ignored_effects)
         if r is not None:   # jointly designed reference; one closing sample shows the hold (u = 0, r = K)
-            prof = Profile(np.r_[u, 0.0], np.r_[r, K], self.fs, K, self.imax, self.settle, "optimal", N, meta)
+            prof = Profile(np.r_[u, 0.0], np.r_[r, K], self.fs, K, self.imax, self.settle, "optimal", len(u), meta)
         else:
             prof = finish_profile(u, K, self.fs, self.imax, self._reference_model(), "optimal", self.settle,
                                   meta=meta)
-            prof.seek_samples = N
+            prof.seek_samples = len(u)
         # the one simulator, played once: a guard on a loop the maps cannot play (it does not superpose)
         # reads this play's sub-step currents
         sub = bool(self.guard_bands) and (self._maps is None or not superposes(self.plant))
@@ -442,11 +491,11 @@ class SeekDesigner:
         prof.meta["design_status"] = "verified"
         return DesignResult(prof, metrics, "verified", stats.t, sol.solver or self.solver_name, objective,
                             settle_samples=N, n_solves=stats.n,
-                            residual_band=qp.residual(sol.x, K, N) * 1.0, worst_metrics=worst,
+                            residual_band=max(qp.residual(sol.x, K, n_set), qp.residual(sol.x, K, N, plants=[0])), worst_metrics=worst,
                             qp_status=stats.status,
                             build_time_s=sum(q.build_time_s for q in self._qps.values()),
                             fallback_solves=stats.fallback, unresolved_solves=len(stats.unresolved),
-                            prediction=pred, guard=guard)
+                            prediction=pred, guard=guard, set_settle_samples=n_set)
 
 
 def design_seek(plant: ModalPlant, controller, tracks: float, imax: float, settle: float = 0.1,

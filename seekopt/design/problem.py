@@ -173,6 +173,16 @@ class SeekProblem:
         Further guard bands ``(lo_hz, hi_hz)`` or ``(lo_hz, hi_hz, gain)``.
     check_robust : bool
         Also simulate each design on every plant of the robust set.
+    input_tail_s : float
+        Minimum seek-settle designs: the feedforward and the reference may go on for this long after the
+        settle sample [s] (rounded to samples; the seek-settle time counts ``|PES|`` only, so the inputs
+        may keep shaping the loop while the head is inside the band; the profile's ``seek_samples`` is
+        the length of its inputs).  0: the inputs end at the settle sample.
+    nominal_first : bool
+        Minimum seek-settle design over a plant set, lexicographic: the worst seek-settle time over the
+        set first, then, holding it, the nominal plant's (the nominal plant may settle before the set's
+        worst; :meth:`seekopt.design.designer.SeekDesigner._nominal_first`).  False: every plant's band
+        from the same sample (the worst case alone).
     solver : SolverSettings
     """
 
@@ -193,6 +203,8 @@ class SeekProblem:
     guard_notch_depth_db: float | None = 6.0
     guard_bands_hz: tuple = ()
     check_robust: bool = False
+    input_tail_s: float = 3e-4
+    nominal_first: bool = True
     solver: SolverSettings = field(default_factory=SolverSettings)
 
     def __post_init__(self):
@@ -213,6 +225,9 @@ class SeekProblem:
             self.hf_guard = tuple(float(f) for f in self.hf_guard)
         self.guard_bands_hz = tuple(tuple(float(v) for v in b) for b in (self.guard_bands_hz or ()))
         self.tail_s = _positive("tail_s", self.tail_s)
+        self.input_tail_s = float(self.input_tail_s)
+        if not (math.isfinite(self.input_tail_s) and 0 <= self.input_tail_s < self.tail_s):
+            raise ProblemError(f"input_tail_s must be in [0, tail_s) (got {self.input_tail_s!r})")
         if isinstance(self.solver, dict):
             self.solver = SolverSettings.from_dict(self.solver)
 

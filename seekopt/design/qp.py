@@ -143,12 +143,16 @@ def _assemble(blocks, n: int, N: int):
 
 
 class SeekQP:
-    """The condensed seek-design QP for seeks of at most ``nmax`` samples (one size class).
+    """The condensed seek-design QP for seeks that settle within at most ``nmax`` samples (one size class).
 
     Scaled decision vector ``x = [v, q, t]`` (O(1) numbers)::
 
-        v_k = u_ff(k) / Imax,  q_k = (r(k) - K) / |K|   (k < nmax; pinned to 0 for k >= N),
+        v_k = u_ff(k) / Imax,  q_k = (r(k) - K) / |K|   (k < nmax + input_tail; pinned to 0 for k >= N + input_tail),
         t   = worst settle-band residual / band          (epigraph variant only)
+
+    ``input_tail``: samples the feedforward and reference may go on after the settle sample ``N`` (the
+    seek-settle time counts ``|PES|`` only: the inputs may keep shaping the loop while the head is
+    inside the band); 0: they end at ``N``.
 
     With ``reference="model"`` (or ``"rigid"``) there is no ``q``: ``r = R u_ff`` with ``R`` the
     Toeplitz map of the reference model's open-loop impulse response.
@@ -171,24 +175,29 @@ class SeekQP:
     def __init__(self, maps: list, nmax: int, horizon: int, imax: float, band: float, fs: float,
                  band_plants: list, solver, *, epigraph: bool = False, R=None, hf=None, slew=None,
                  rho: float = 1e-2, rho_q: float = 1e-3, w_e: float = 1.0, w_t: float = 10.0,
-                 eps: float = 1e-9, current_extra: int = 40, stride: int = 1):
+                 eps: float = 1e-9, current_extra: int = 40, stride: int = 1, input_tail: int = 0):
         t_build = time.perf_counter()
-        N, Hn, L = int(nmax), int(horizon), maps[0].L
-        self.N, self.horizon, self.imax, self.band, self.fs = N, Hn, float(imax), float(band), float(fs)
+        Ns, Hn, L = int(nmax), int(horizon), maps[0].L
+        self.input_tail = int(input_tail)
+        N = Ns + self.input_tail            # input samples (the rows below use N input columns)
+        if N > Hn:
+            raise ValueError(f"input samples {N} beyond the horizon {Hn}")
+        self.N, self.nin = Ns, N
+        self.horizon, self.imax, self.band, self.fs = Hn, float(imax), float(band), float(fs)
         self.free_ref = R is None
         self.epigraph = bool(epigraph)
         nq = N if self.free_ref else 0
         self.nv, self.nq, self.nt = N, nq, int(epigraph)
         n = N + nq + self.nt
         self.n = n
-        ks = pes_row_samples(N, Hn)
+        ks = pes_row_samples(Ns, Hn)
         self.pes_k = ks
         ncur = min(Hn, N + current_extra)
         blocks, c0, c1, kinds = [], [], [], []    # offsets: c = c0 + K c1 (band / Imax units)
 
         if not self.free_ref:
             Rfull = np.asarray(R, float)[:Hn, :N]
-        ks_other = set_row_samples(N, Hn, stride)     # thinned for the other plants (pairs of adjacent samples)
+        ks_other = set_row_samples(Ns, Hn, stride)     # thinned for the other plants (pairs of adjacent samples)
         for i, m in enumerate(maps):
             ksi = ks if i == 0 else ks_other
             Tyu, Tyr, syr = m.position_rows(ksi, N if self.free_ref else Hn)
@@ -255,7 +264,7 @@ class SeekQP:
         if epigraph:
             P[-1, -1] += 2 * w_t
         P += 2 * eps * np.eye(n)
-        kt = np.arange(N, Hn)
+        kt = np.arange(Ns, Hn)
         eblocks, e1 = [], []
         for m in maps:
             Tyu, Tyr, syr = m.position_rows(kt, N if self.free_ref else Hn)
@@ -302,14 +311,15 @@ class SeekQP:
 
     # ------------------------------------------------------------------ per design
     def data(self, K: float, nseek: int, beta: float | None, gamma: float, hf_tol: float | None,
-             slew_a_per_s: float | None = None):
+             slew_a_per_s: float | None = None, nominal_from: int | None = None):
         """Numeric QP data for a seek of ``K`` tracks in ``nseek`` samples.
 
         ``beta``: settle-band fraction on ``k >= nseek`` (None: band rows free); ``gamma``: current
-        fraction of ``Imax``; ``hf_tol``: guard tolerance in bands.
+        fraction of ``Imax``; ``hf_tol``: guard tolerance in bands; ``nominal_from``: the nominal plant's
+        band rows from this sample on (at most ``nseek``; the set's other plants from ``nseek``).
         """
         aK = abs(K)
-        g, lba, uba, lbx, ubx = self.bounds(K, nseek, beta, gamma, hf_tol, slew_a_per_s)
+        g, lba, uba, lbx, ubx = self.bounds(K, nseek, beta, gamma, hf_tol, slew_a_per_s, nominal_from)
         H = self._dm["P0"] + aK * self._dm["P1"] + aK * aK * self._dm["P2"]
         A = self._dm["A0"] + aK * self._dm["A1"]
         return H, g, A, lba, uba, lbx, ubx
@@ -325,24 +335,28 @@ class SeekQP:
         return self._mat
 
     def numeric(self, K: float, nseek: int, beta: float | None, gamma: float, hf_tol: float | None,
-                slew_a_per_s: float | None = None):
+                slew_a_per_s: float | None = None, nominal_from: int | None = None):
         """:meth:`data` as numpy arrays ``(H, g, A, lba, uba, lbx, ubx)`` (no casadi copies)."""
         H, A = self.matrices(K)
-        g, lba, uba, lbx, ubx = self.bounds(K, nseek, beta, gamma, hf_tol, slew_a_per_s)
+        g, lba, uba, lbx, ubx = self.bounds(K, nseek, beta, gamma, hf_tol, slew_a_per_s, nominal_from)
         return H, g, A, lba, uba, lbx, ubx
 
     def bounds(self, K: float, nseek: int, beta: float | None, gamma: float, hf_tol: float | None,
-               slew_a_per_s: float | None = None):
+               slew_a_per_s: float | None = None, nominal_from: int | None = None):
         """``(g, lba, uba, lbx, ubx)`` (numpy) of :meth:`data`."""
         aK = abs(K)
         N, n = self.N, self.n
         if not 0 < nseek <= N:
             raise ValueError(f"nseek {nseek} outside 1..{N}")
+        nu = nseek + self.input_tail        # input samples
+        n_nom = nseek if nominal_from is None else int(nominal_from)
+        if not 0 < n_nom <= nseek:
+            raise ValueError(f"nominal_from {nominal_from} outside 1..{nseek}")
         g = K * self._q1 + K * aK * self._q2
         c = self.c0 + K * self.c1
         lba = np.full(self.m, -np.inf); uba = np.full(self.m, np.inf)
         mk = self._masks
-        active = self._pes & (self.sample >= nseek)
+        active = self._pes & (self.sample >= np.where(self.plant_idx == 0, n_nom, nseek))
         if self.epigraph:
             hi, lo = active & mk["pes_hi"], active & mk["pes_lo"]
             uba[hi] = -c[hi]; lba[lo] = -c[lo]
@@ -360,9 +374,9 @@ class SeekQP:
             lim = slew_a_per_s / (self.fs * self.imax)
             lba[sl] = -lim; uba[sl] = lim
         lbx = np.zeros(n); ubx = np.zeros(n)
-        lbx[:nseek], ubx[:nseek] = -1.0, 1.0
+        lbx[:nu], ubx[:nu] = -1.0, 1.0
         if self.nq:
-            lbx[N:N + nseek], ubx[N:N + nseek] = -2.0, 2.0
+            lbx[self.nin:self.nin + nu], ubx[self.nin:self.nin + nu] = -2.0, 2.0
         if self.nt:
             lbx[-1], ubx[-1] = 0.0, np.inf
         return g, lba, uba, lbx, ubx
@@ -379,9 +393,10 @@ class SeekQP:
         return constraint_violation(A, x, lba, uba, lbx, ubx)
 
     def unpack(self, x: np.ndarray, K: float, nseek: int):
-        """``(u_ff [A], r [track, relative] or None)`` over ``nseek`` samples."""
-        u = self.imax * x[:nseek]
-        r = K + abs(K) * x[self.N:self.N + nseek] if self.nq else None
+        """``(u_ff [A], r [track, relative] or None)`` over the ``nseek + input_tail`` input samples."""
+        nu = nseek + self.input_tail
+        u = self.imax * x[:nu]
+        r = K + abs(K) * x[self.nin:self.nin + nu] if self.nq else None
         return u, r
 
     def residual(self, x: np.ndarray, K: float, nseek: int, plants=None) -> float:

@@ -35,7 +35,10 @@ class DesignResult:
     ``solve_time_s`` sums the QP solves of this design; ``objective`` is
     ``"min_settle/<worst|mean>"`` or ``"min_residual/<worst|mean>"``.  ``fallback_solves`` counts the
     QPs a fallback solver answered after the primary failed without proof; ``unresolved_solves``
-    the QPs no solver decided (skipped).
+    the QPs no solver decided (skipped).  ``settle_samples`` is the sample the nominal plant's band
+    holds from, ``set_settle_samples`` the one every other plant of the set holds it from (the seek's
+    length; later than ``settle_samples`` when the lexicographic design,
+    :attr:`SeekProblem.nominal_first`, let the nominal plant settle first).
     """
 
     profile: Profile
@@ -54,6 +57,11 @@ class DesignResult:
     unresolved_solves: int = 0
     prediction: SetPrediction | None = None
     guard: GuardReport | None = None
+    set_settle_samples: int = 0
+
+    def __post_init__(self):
+        if not self.set_settle_samples:
+            self.set_settle_samples = self.settle_samples
 
 
 class SolveStats:

@@ -112,8 +112,9 @@ class WorkingSetQP:
         return self._chains[key]
 
     def solve(self, K: float, nseek: int, beta, gamma: float, hf_tol, slew_a_per_s=None, x0=None,
-              check=None, confirm: bool = True, screen: bool = True) -> QPSolution:
-        """The QP of ``SeekQP.data(K, nseek, beta, gamma, hf_tol, slew_a_per_s)``; ``check(x, A)``
+              check=None, confirm: bool = True, screen: bool = True,
+              nominal_from: int | None = None) -> QPSolution:
+        """The QP of ``SeekQP.data(K, nseek, beta, gamma, hf_tol, slew_a_per_s, nominal_from)``; ``check(x, A)``
         (full-problem re-check, returns a note or '') as in :meth:`SolverChain.solve`.
 
         ``confirm=False``: a reduced "infeasible" of the primary that fails the Farkas check is
@@ -127,7 +128,7 @@ class WorkingSetQP:
         rows: 2-3x less CPU than the full QP, where the pinned samples past the seek are a third of
         the variables)."""
         qp = self.qp
-        g, lba, uba, lbx, ubx = qp.bounds(K, nseek, beta, gamma, hf_tol, slew_a_per_s)
+        g, lba, uba, lbx, ubx = qp.bounds(K, nseek, beta, gamma, hf_tol, slew_a_per_s, nominal_from)
         H, A = self.qp.matrices(K)
         fv = np.flatnonzero(lbx < ubx)                          # free variables
         xfix = np.where(lbx == ubx, lbx, 0.0)
@@ -241,7 +242,7 @@ class WorkingSetQP:
         # the full QP, as without the working set
         self.full_solves += 1
         self.last_fallback = why
-        full = qp.solver.solve(*qp.numeric(K, nseek, beta, gamma, hf_tol, slew_a_per_s), x0=None,
+        full = qp.solver.solve(*qp.numeric(K, nseek, beta, gamma, hf_tol, slew_a_per_s, nominal_from), x0=None,
                                check=None if check is None else (lambda x: check(x, A)))
         if full.outcome is QPStatus.OPTIMAL:
             self._hint = np.flatnonzero(np.abs(np.nan_to_num(full.lam_a)) > 1e-12)
