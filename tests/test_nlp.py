@@ -397,3 +397,66 @@ def test_set_row_samples_are_one_rule_for_qp_and_nlp(ctrl):
         first = ks[(ks >= N + 96) & ((ks - N - 96) % 4 == 0) & (ks < H)]    # first of each pair (H: the last)
         assert first.size and np.all(np.isin(first + 1, ks))
     assert np.array_equal(ks, qpmod.set_row_samples(N, H + 1, 2))
+
+
+# ----------------------------------------------------------------------------- band rows' horizon
+def _slow_mode_kt_plant():
+    """Kt +-20 % and a lightly damped 150 Hz mode (zeta 0.01) in place of the 420 Hz one: after a
+    K = 10 seek it crests ~180 samples after the end of the seek."""
+    import dataclasses
+    p = kt_plant()
+    modes = list(p.modes)
+    modes[0] = dataclasses.replace(modes[0], freq_hz=150.0, zeta=0.01, gain=0.045)
+    return p.copy(modes=modes)
+
+
+def test_band_rows_cover_the_slowest_lightly_damped_mode_one_rule(ctrl):
+    """The NLP's band rows, the linear designer's and the long-seek designer's cover the same samples
+    after the seek, SeekProblem.band_tail_samples: at least two periods of the slowest lightly damped
+    closed-loop pole (here the 150 Hz mode: > 13 ms), whatever the shorter tail_s asked for."""
+    from seekopt.design.longseek import LongSeekDesigner
+    p = _slow_mode_kt_plant()
+    des = EffectAwareDesigner(p, ctrl, IMAX, 0.1, None, NLPSettings(tail_s=0.002))
+    n = des.problem.band_tail_samples()
+    assert n >= 2 * ctrl.sample_rate_hz / 150.0 * 0.97          # two periods of the (closed-loop) mode
+    assert des.tail == des.accept_tail == des.linear.tail == n
+    assert LongSeekDesigner(des.problem).tail == n
+    # a loop without slow modes keeps the asked-for tail (at least 64 samples)
+    quick = EffectAwareDesigner(kt_plant(), ctrl, IMAX, 0.1, None, NLPSettings(tail_s=0.008))
+    assert quick.tail == round(0.008 * ctrl.sample_rate_hz)
+
+
+def test_design_scraping_the_band_past_short_rows_is_not_accepted(ctrl):
+    """NLP band rows over only 53 samples after a K = 10 seek (the NLP's former 2 ms tail): Ipopt meets
+    0.8 band on them, the 150 Hz mode then crests at ~0.9 band.  Such a design settles by its length
+    within Imax (the former acceptance took it); the full-plant check now holds the rows' 0.8 band margin
+    over the rule's horizon and rejects it (here, two candidates tried, the linear design verified on the
+    full plant is the answer)."""
+    p = _slow_mode_kt_plant()
+    fs = ctrl.sample_rate_hz
+    des = EffectAwareDesigner(p, ctrl, IMAX, 0.1, None, NLPSettings(tail_s=0.002, check_steps=2))
+    des.tail = 53                                    # rows shorter than the rule (as before)
+    said, plays = [], []
+    real = nlpmod.play_seek
+
+    def recording(plant, controller, prof, start, **kw):
+        m, sim = real(plant, controller, prof, start, **kw)
+        plays.append((prof.kind, prof.seek_samples, m, des._held_margin(sim, prof, 10.0, 12000.0, prof.seek_samples)))
+        return m, sim
+    nlpmod.play_seek, orig = recording, nlpmod.play_seek
+    try:
+        res = des.design(10.0, 12000.0, progress=said.append)
+    finally:
+        nlpmod.play_seek = orig
+    # a candidate the former acceptance took: settled by its length within Imax, crest past the rows
+    scraped = [(n, h) for kind, n, m, h in plays if kind == "optimal-nlp" and m.settled
+               and m.settle_time_s * fs <= n + 1 + 1e-9 and m.peak_current_a <= IMAX and h > 0.8 * 1.05]
+    assert scraped, plays
+    assert any("full-plant check failed" in s for s in said)
+    # the answer is not that candidate: an NLP design holds the margin, else the linear design (its settle
+    # measured on the full plant, no prediction of its own)
+    _, sim = play_seek(p, ctrl, res.profile, 12000.0, horizon_s=0.03)
+    if res.profile.kind == "optimal-nlp":
+        assert des._held_margin(sim, res.profile, 10.0, 12000.0, res.settle_samples) <= 0.8 * (1 + 1e-6)
+    else:
+        assert res.profile.meta["design_path"].startswith("linear") and res.metrics.settled

@@ -102,7 +102,7 @@ class SeekDesigner:
         self.robust = p.robust
         self.fs = p.sample_rate_hz
         self.L = int(p.controller.fast_multiple)
-        self.tail = max(int(round(p.tail_s * self.fs)), 64)
+        self.tail = p.band_tail_samples()
         self.reference = p.reference
         self.settings = p.solver
         self.solver_name = p.solver.qp_solver

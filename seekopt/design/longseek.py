@@ -195,7 +195,7 @@ class LongSeekDesigner:
         if abs(p.plant.bias_a) >= self.gamma * self.imax:
             raise LongSeekError(f"bias {p.plant.bias_a:g} A leaves no current for a seek at Imax {self.imax:g} A")
         self.plants = p.plants()
-        self.tail = max(int(round(p.tail_s * self.fs)), 64)
+        self.tail = p.band_tail_samples()
         self._short = short_designer
         self._steps: dict = {}
         self._maps, self._maps_h = None, 0

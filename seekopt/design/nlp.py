@@ -125,13 +125,16 @@ class EffectAwareDesigner:
         self.fs, self.L = float(controller.sample_rate_hz), int(controller.fast_multiple)
         self.nlp_plant = plant.copy(effects=[e for e in plant.effects if e.kind != "output"])
         self.robust = robust
+        tail = {} if self.settings.tail_s is None else {"tail_s": self.settings.tail_s}
         self.problem = SeekProblem(plant.linear_part(), controller, imax, settle,
                                    band_margin=self.settings.band_margin,
                                    current_margin=self.settings.current_margin, robust=robust,
-                                   family=[f.linear_part() for f in (family or [])])
+                                   family=[f.linear_part() for f in (family or [])], **tail)
         self.linear = SeekDesigner(self.problem)
         self.sizes = self.problem.solver.size_classes
-        self.tail = max(int(round(self.settings.tail_s * self.fs)), 16)
+        # band rows after the seek: the linear designer's horizon (one rule, SeekProblem.band_tail_samples);
+        # the full-plant acceptance holds the rows' margin over the same samples
+        self.tail = self.accept_tail = self.linear.tail
         self._nlps: dict = {}
         self._spreads: dict = {}
         self._derated: dict = {}
@@ -267,9 +270,11 @@ class EffectAwareDesigner:
             tried += 1
             _, v, q, _ = cache[n]
             prof = self._profile(v, q, K, T0, n, lin, solves)
-            m, _ = play_seek(self.nlp_plant, self.controller, prof, T0, settle=self.settle,
-                             horizon_s=st.check_tail_s)
-            if m.peak_current_a <= self.imax * (1 + 1e-9) and m.settle_time_s * self.fs <= n + 1 + 1e-9:
+            m, sim = play_seek(self.nlp_plant, self.controller, prof, T0, settle=self.settle,
+                               horizon_s=max(st.check_tail_s, (self.accept_tail + 2) / self.fs))
+            held = self._held_margin(sim, prof, K, T0, n)
+            if (m.peak_current_a <= self.imax * (1 + 1e-9) and m.settle_time_s * self.fs <= n + 1 + 1e-9
+                    and held <= st.band_margin * (1 + 1e-6)):
                 rec = next(s for s in reversed(solves) if s.n_seek == n)
                 prof.meta.update(guard_excess_band=round(rec.guard_excess, 4),
                                  warm_start_imax_a=round(warm.profile.imax_a, 5))
@@ -278,11 +283,19 @@ class EffectAwareDesigner:
                 return NLPDesignResult(prof, m, T0, n, solves, lin, lin_m,
                                        sum(p.build_time_s for p in self._nlps.values()))
             say(f"  N={n}: full-plant check failed (settle {m.settle_time_s * 1e3:.3f} ms, "
-                f"peak {m.peak_current_a:.4g} A)")
+                f"peak {m.peak_current_a:.4g} A, peak |PES| {held:.3g} band over the {self.accept_tail} samples "
+                f"after the seek, margin {st.band_margin:g})")
         if n_lin is not None:
             return self._linear_result(lin, lin_m, K, T0, n_lin, solves, say)
         raise NLPDesignError(f"no effect-aware design of {K:g} tracks from track {T0:g} passed the full-plant "
                              f"check ({tried} candidates from {hi} samples)")
+
+    def _held_margin(self, sim, prof: Profile, K: float, T0: float, n: int) -> float:
+        """Worst ``|PES|`` [band] of a full-plant play over the samples the NLP's band rows cover
+        (``n .. n + accept_tail``, :meth:`SeekProblem.band_tail_samples`): the design is accepted only when
+        it holds there the margin its rows promised (``band_margin``), not merely the band."""
+        pes = np.asarray(sim.true_position_track, float) - (T0 + K)
+        return float(np.max(np.abs(pes[n:n + self.accept_tail + 1]))) / self.settle
 
     def _linear_result(self, lin: DesignResult, lin_m: SeekMetrics, K, T0, n_lin: int, solves, say):
         """The linear (QP) design as the answer: it settled on the full plant from ``T0`` within Imax in

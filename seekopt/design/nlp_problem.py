@@ -64,8 +64,10 @@ BUILD_COUNT = {"nlp": 0}
 class NLPSettings:
     """Settings of the effect-aware design (times in s, fractions of band / Imax).
 
-    ``tail_s``: time after the seek carrying band rows in the NLP (the simulator check runs
-    ``check_tail_s``); ``band_margin``/``current_margin``: ``beta``/``gamma`` as in
+    ``tail_s``: the problem's ``tail_s`` (:class:`seekopt.design.problem.SeekProblem`; None: its
+    default) -- the NLP's band rows, the linear warm start's and the full-plant acceptance cover the same
+    samples after the seek, :meth:`~seekopt.design.problem.SeekProblem.band_tail_samples` (the simulator
+    check runs at least ``check_tail_s``); ``band_margin``/``current_margin``: ``beta``/``gamma`` as in
     :class:`seekopt.design.problem.SeekProblem` (the unmodelled-mode guard is the problem's);
     ``rho``, ``rho_q``, ``w_e``, ``w_t``: cost weights
     (smoothness of ``u_ff`` and ``r``, tail energy, worst residual); ``w_slack``: weight of the elastic
@@ -88,7 +90,7 @@ class NLPSettings:
     velocity one sub-step of Coulomb force gives, divided by this (:func:`nlp_smoothing`); ``ipopt``:
     extra Ipopt options."""
 
-    tail_s: float = 0.003
+    tail_s: float | None = None
     band_margin: float = 0.8
     current_margin: float = 0.97
     rho: float = 1e-2

@@ -20,13 +20,26 @@ from seekopt.design.robust import RobustSpec
 from seekopt.design.solvers import DAQP_PKG, QP_SOLVERS
 from seekopt.drive.loopcheck import closed_loop_poles
 
-__all__ = ["ProblemError", "SolverSettings", "SeekProblem", "check_closed_loop", "SIZE_CLASSES"]
+__all__ = ["ProblemError", "SolverSettings", "SeekProblem", "check_closed_loop", "band_tail_samples", "SIZE_CLASSES",
+           "TAIL_MIN_SAMPLES", "TAIL_CYCLES", "LIGHT_DAMPING", "TAIL_MAX_S"]
 
 #: Seek-length classes [samples]: one QP structure (and solver) per class, built on first use.  Above
 #: 128 samples (seeks of about 2500 tracks and longer) the classes are 1/8 to 1/4 apart: the dense QP's
 #: cost grows steeply with its size (K = 10000: class 256 took 45-75 s per solve, 224 about 25 s).
 SIZE_CLASSES = (8, 16, 24, 32, 48, 64, 96, 128, 144, 160, 176, 192, 208, 224, 240, 256, 288, 320, 352, 384,
                 448, 512)
+
+
+#: The band rows after a seek (:func:`band_tail_samples`): at least this many samples, ...
+TAIL_MIN_SAMPLES = 64
+#: ... and this many periods of the slowest lightly damped closed-loop oscillation (damping ratio below
+#: ``LIGHT_DAMPING``): a slow mode cancelled by faster ones at the end of the seek crests once they have
+#: decayed (a 300 Hz flex mode of a loop-fitted Kt plant rose from 0.065 to 0.0999 band 0.8-1.6 ms after a
+#: 3 ms row window), ...
+TAIL_CYCLES = 2.0
+LIGHT_DAMPING = 0.1
+#: ... but never more than this [s] (a lightly damped loop pole below ~70 Hz is a loop problem, not a seek's)
+TAIL_MAX_S = 0.03
 
 
 class ProblemError(ValueError):
@@ -147,8 +160,8 @@ class SeekProblem:
         Reference designed jointly (ERRATA item 6), or the response of the plant model (modes
         included) or of the rigid body to the feedforward (the paper).
     tail_s : float
-        Time after the seek over which the band is enforced in the QP [s] (at least 64 samples;
-        the simulator check runs longer).
+        Time after the seek over which the band is enforced in the QP [s] (lengthened for a slow
+        lightly damped loop mode: :meth:`band_tail_samples`; the simulator check runs longer).
     hf_guard : (float, float) or None
         Band of unmodelled modes as fractions of the servo rate (identification does not see modes
         near and above Nyquist); ``hf_gain`` their gain relative to the rigid body, ``hf_tol`` the
@@ -222,6 +235,11 @@ class SeekProblem:
     @property
     def sample_rate_hz(self) -> float:
         return float(self.controller.sample_rate_hz)
+
+    def band_tail_samples(self) -> int:
+        """Samples after the seek carrying settle-band rows: :func:`band_tail_samples` of the nominal plant
+        (the one rule of the linear designer, the long-seek designer and the effect-aware NLP)."""
+        return band_tail_samples(self.plant, self.controller, self.tail_s)
 
     def plants(self) -> list:
         """The design's plant set: nominal first, then the family members and the robust set's vertices
@@ -317,3 +335,23 @@ def check_closed_loop(plant: ModalPlant, controller, margin: float = 1e-9) -> fl
         raise ProblemError(f"closed loop of the plant and controller {getattr(controller, 'name', '')!r} is "
                            f"unstable: pole |z| = {rho:.6g} at {f:.0f} Hz")
     return rho
+
+
+def band_tail_samples(plant: ModalPlant, controller, tail_s: float) -> int:
+    """Samples after a seek over which a design must hold its band margin (its band rows, and the
+    effect-aware design's full-plant acceptance): ``tail_s`` [s], at least :data:`TAIL_MIN_SAMPLES`, and
+    at least :data:`TAIL_CYCLES` periods of the slowest lightly damped (damping ratio below
+    :data:`LIGHT_DAMPING`) pole of the closed loop of ``plant``'s linear part
+    (:func:`seekopt.drive.loopcheck.closed_loop_poles`), at most :data:`TAIL_MAX_S`."""
+    fs = float(controller.sample_rate_hz)
+    n = max(int(round(float(tail_s) * fs)), TAIL_MIN_SAMPLES)
+    poles = closed_loop_poles(plant, controller)
+    poles = poles[(np.abs(poles) > 1e-12) & (np.abs(np.imag(poles)) > 1e-12)]
+    if poles.size:
+        s = np.log(poles) * fs                               # continuous-time equivalents [1/s]
+        zeta = -np.real(s) / np.abs(s)
+        w = np.abs(np.imag(s))[zeta < LIGHT_DAMPING]
+        if w.size:
+            period = 2 * math.pi / float(np.min(w))          # [s]
+            n = max(n, int(math.ceil(min(TAIL_CYCLES * period, TAIL_MAX_S) * fs)))
+    return n
