@@ -30,17 +30,15 @@ are not modelled by the optimiser; every design is re-checked on the full plant 
 """
 from __future__ import annotations
 
-import contextlib
 import math
-import sys
 from collections import Counter
 
 import numpy as np
-from threadpoolctl import ThreadpoolController
 
 from identification.model.plant import ModalPlant
 
 from seekopt.design import guard as _guard, qp as _qp
+from seekopt.design.blas import blas_limit
 from seekopt.design.predict import play_linear, predict_on_set, set_loop_maps, superposes
 from seekopt.design.metrics import DEFAULT_TAIL_S, played_metrics, worst_case
 from seekopt.design.problem import ProblemError, SeekProblem, check_closed_loop
@@ -65,17 +63,6 @@ WORKING_SET_MIN_ROWS = 2500
 #: 128 samples then share the first map set (a rebuild re-simulates every plant of the set, ~0.4 s for
 #: 22 plants, where the headroom costs ~0.07 s once; the responses' first samples are the same).
 MAP_HEADROOM = 128
-
-_POOLS: list = [None, -1]      # ThreadpoolController, len(sys.modules) when it was made
-
-
-def _blas_pools() -> ThreadpoolController:
-    """The process's thread pools (threadpoolctl), found once: ``threadpool_limits`` scans the loaded
-    libraries (``/proc/self/maps``) on every call, 5 ms of a 20-50 ms nominal design.  Scanned again
-    when modules have been imported since (a new extension may bring its own BLAS)."""
-    if _POOLS[0] is None or _POOLS[1] != len(sys.modules):
-        _POOLS[:] = [ThreadpoolController(), len(sys.modules)]
-    return _POOLS[0]
 
 
 class SeekDesigner:
@@ -278,8 +265,7 @@ class SeekDesigner:
 
     def _blas(self):
         """BLAS thread limit for a design (:attr:`SolverSettings.blas_threads`)."""
-        n = self.settings.blas_threads
-        return _blas_pools().limit(limits=int(n), user_api="blas") if n else contextlib.nullcontext()
+        return blas_limit(self.settings.blas_threads)
 
     def design(self, tracks: float, seek_samples: int | None = None) -> DesignResult:
         """Design the seek of ``tracks`` tracks.

@@ -19,20 +19,21 @@ All solvers take ``min 1/2 x'Hx + g'x  s.t. lba <= A x <= uba, lbx <= x <= ubx``
 Every raw status is mapped to one :class:`QPStatus` (:func:`classify_status`): ``optimal``,
 ``infeasible`` (the solver proved it), ``numerical`` (trouble: proves nothing) or
 ``iteration_limit`` (proves nothing).  A solution is only used when it is ``optimal``.
+
+The shared result and status types live in :mod:`seekopt.design.qp_status`, :class:`DaqpQP` in
+:mod:`seekopt.design.daqp_solver`; every name is re-exported here.
 """
 from __future__ import annotations
 
-import contextlib
-import os
-import sys
 import time
-from dataclasses import dataclass, field
-from enum import Enum
 
 import casadi as ca
 import numpy as np
 
 from seekopt.design.certificates import farkas_certificate, proves_infeasible  # noqa: F401
+from seekopt.design.daqp_solver import DaqpQP, kkt_holds  # noqa: F401
+from seekopt.design.qp_status import (DAQP_PKG, QPSolution, QPStatus, _nan_safe, _quiet_stdout,  # noqa: F401
+                                      classify_status, dm)
 
 __all__ = ["QPStatus", "classify_status", "QPSolution", "ConicQP", "DaqpQP", "IpoptQP", "make_qp_solver",
            "SolverChain", "QP_PLUGINS", "DAQP_PKG", "QP_SOLVERS", "dm", "kkt_holds", "proves_infeasible", "farkas_certificate",
@@ -40,125 +41,8 @@ __all__ = ["QPStatus", "classify_status", "QPSolution", "ConicQP", "DaqpQP", "Ip
 
 #: ``casadi.conic`` plugins the designer accepts.
 QP_PLUGINS = ("daqp", "qpoases", "highs", "osqp", "proxqp", "qrqp")
-#: The ``daqp`` package called directly (:class:`DaqpQP`).
-DAQP_PKG = "daqp_pkg"
-#: Every solver name :func:`make_qp_solver` accepts.
+#: Every solver name :func:`make_qp_solver` accepts (``DAQP_PKG``: :class:`DaqpQP`).
 QP_SOLVERS = (DAQP_PKG,) + QP_PLUGINS + ("ipopt",)
-
-
-class QPStatus(str, Enum):
-    """Outcome of one QP solve."""
-
-    OPTIMAL = "optimal"
-    INFEASIBLE = "infeasible"
-    NUMERICAL = "numerical"
-    ITERATION_LIMIT = "iteration_limit"
-
-
-#: daqp exit flags (daqp ``api.h``): 1 optimal, 2 soft optimal, -1 infeasible, -2 cycling,
-#: -3 unbounded, -4 iteration limit, -5 non-convex, -6 overdetermined initial active set.
-_DAQP = {1: QPStatus.OPTIMAL, 2: QPStatus.OPTIMAL, -1: QPStatus.INFEASIBLE, -2: QPStatus.NUMERICAL,
-         -3: QPStatus.NUMERICAL, -4: QPStatus.ITERATION_LIMIT, -5: QPStatus.NUMERICAL, -6: QPStatus.NUMERICAL}
-#: Text statuses of the other solvers (lower case, substring match, first hit wins).
-_TEXT = (("primal infeasible", QPStatus.INFEASIBLE), ("infeasib", QPStatus.INFEASIBLE),
-         ("max_iter", QPStatus.ITERATION_LIMIT), ("maximum iterations", QPStatus.ITERATION_LIMIT),
-         ("iteration limit", QPStatus.ITERATION_LIMIT), ("maximum number of working set", QPStatus.ITERATION_LIMIT),
-         ("maximum_iterations", QPStatus.ITERATION_LIMIT), ("time limit", QPStatus.ITERATION_LIMIT))
-
-
-def classify_status(solver: str, raw, success: bool) -> QPStatus:
-    """Map a solver's raw ``return_status`` (and casadi's ``success``) to a :class:`QPStatus`.
-
-    daqp reports an integer exit flag (see ``_DAQP``; -2 is cycling: numerical trouble, not
-    infeasibility).  The other plugins report text: infeasibility only when the text says so,
-    iteration and time limits as ``iteration_limit``; anything else that is not a success is
-    ``numerical``.  Unknown statuses are never taken as proof of infeasibility.
-    """
-    text = str(raw).strip()
-    if solver in ("daqp", DAQP_PKG):
-        try:
-            return _DAQP.get(int(float(text)), QPStatus.NUMERICAL)
-        except ValueError:
-            pass
-    if success:
-        return QPStatus.OPTIMAL
-    low = text.lower()
-    if "inaccurate" in low:
-        return QPStatus.NUMERICAL
-    for key, status in _TEXT:
-        if key in low:
-            return status
-    return QPStatus.NUMERICAL
-
-
-@contextlib.contextmanager
-def _quiet_stdout(active: bool = True):
-    """Silence the C-level stdout (file descriptor 1) inside the block."""
-    if not active:
-        yield
-        return
-    sys.stdout.flush()
-    try:
-        saved = os.dup(1)
-    except OSError:         # no file descriptor 1 (embedded use): nothing to silence
-        yield
-        return
-    try:
-        with open(os.devnull, "w") as null:
-            os.dup2(null.fileno(), 1)
-            yield
-    finally:
-        os.dup2(saved, 1)
-        os.close(saved)
-
-
-def dm(a: np.ndarray) -> ca.DM:
-    """numpy -> casadi.DM (dense).  Slow for big arrays (~0.1 s per million entries): do it once."""
-    a = np.asarray(a, dtype=float)
-    return ca.DM(a if a.ndim == 2 else a.reshape(-1, 1))
-
-
-@dataclass
-class QPSolution:
-    """Result of one QP solve: ``x``, multipliers, raw status, wall and CPU time [s].
-
-    ``outcome`` is the classified :class:`QPStatus` (derived from ``success``/``status`` when not
-    given); ``solver`` the solver that produced it; ``attempts`` the ``(solver, raw status,
-    outcome)`` of every solve a :class:`SolverChain` made for this answer.  ``proven``: for an
-    ``infeasible`` of a solver that checks its own multipliers (:class:`DaqpQP`), whether they are a
-    verified Farkas certificate on the data solved; ``None`` where the solver's status is all there is.
-    """
-
-    x: np.ndarray
-    lam_a: np.ndarray
-    lam_x: np.ndarray
-    success: bool
-    status: str
-    solve_time_s: float
-    cpu_time_s: float
-    outcome: QPStatus | None = None
-    solver: str = ""
-    attempts: list = field(default_factory=list)
-    proven: bool | None = None
-
-    def __post_init__(self):
-        if self.outcome is None:          # raw flags without a solver name: daqp's integer flags
-            name = self.solver or ("daqp" if self.status.strip().lstrip("-").isdigit() else "")
-            self.outcome = classify_status(name, self.status, self.success)
-        if self.outcome is not QPStatus.OPTIMAL:
-            self.success = False
-        elif not self.success:
-            self.outcome = QPStatus.NUMERICAL
-
-    @property
-    def infeasible(self) -> bool:
-        """The solver proved the problem infeasible."""
-        return self.outcome is QPStatus.INFEASIBLE
-
-
-def _nan_safe(a, n):
-    a = np.asarray(a, dtype=float).ravel()
-    return a if a.size == n else np.full(n, np.nan)
 
 
 class ConicQP:
@@ -261,120 +145,6 @@ class ConicQP:
             outcome = QPStatus.NUMERICAL
         return QPSolution(x, _nan_safe(res["lam_a"], self.m), _nan_safe(res["lam_x"], self.n),
                           outcome is QPStatus.OPTIMAL, str(raw), dt, dc, outcome, self.plugin)
-
-
-class DaqpQP:
-    """The ``daqp`` package (PyPI) on a dense QP of ``n`` variables and ``m`` rows, called directly.
-
-    Same problem form as :class:`ConicQP`; the bounds go to daqp as its simple bounds, rows and
-    variables with ``lb == ub`` as equalities.  Nothing is built per size (daqp sets up its workspace
-    per call), so one instance serves any ``m``.
-
-    Warm start: ``lam_a0``/``lam_x0`` (multipliers in casadi's sign convention, e.g. a previous
-    answer's mapped to these rows) give daqp its starting active set (``dual_start``: the nonzero
-    entries start active).  A warm start that ends in anything but an answer or an infeasibility
-    (a linearly dependent starting set: -6; cycling) is retried cold once.  ``x0`` is not used.
-
-    On ``infeasible`` (daqp exit flag -1) the multipliers daqp returns (its Farkas direction, of
-    opposite sign to casadi's convention; returned in casadi's) are checked on the data
-    (:func:`proves_infeasible`): ``QPSolution.proven`` says whether they prove it.
-
-    Parameters
-    ----------
-    n, m : int
-        Variables and rows (``m`` informative: any row count is accepted).
-    options : dict, optional
-        daqp settings (``iter_limit``, ``primal_tol``, ``dual_tol``, ...), merged over
-        ``iter_limit=5000, primal_tol=1e-9`` (the settings :class:`ConicQP` gives casadi's daqp).
-    """
-
-    name = DAQP_PKG
-    warm_duals = True
-
-    def __init__(self, n: int, m: int, options: dict | None = None):
-        import daqp
-        self._daqp = daqp
-        self.n, self.m, self.plugin = int(n), int(m), DAQP_PKG
-        self.settings = {"iter_limit": 5000, "primal_tol": 1e-9}
-        self.settings.update(options or {})
-        self.warm_retries = 0           # warm starts that failed and were solved cold (statistics)
-
-    def _call(self, H, f, A, bu, bl, sense, dual0):
-        kw = dict(self.settings)
-        if dual0 is not None:
-            kw["dual_start"] = dual0
-        try:
-            x, _, flag, info = self._daqp.solve(H, f, A, bu, bl, sense, **kw)
-            return np.asarray(x, dtype=float), int(flag), np.asarray(info["lam"], dtype=float)
-        except (ValueError, RuntimeError) as exc:      # ill-posed data: numerical trouble, not a proof
-            return None, f"error: {exc}", None
-
-    def solve(self, H, g, A, lba, uba, lbx, ubx, x0=None, lam_a0=None, lam_x0=None) -> QPSolution:
-        """Solve with numpy data; ``lam_a0``/``lam_x0`` (length ``len(A)``/``n``) start the active set."""
-        H = np.ascontiguousarray(H, dtype=float)
-        A = np.ascontiguousarray(A, dtype=float)
-        n, m = H.shape[0], A.shape[0]
-        lba, uba = np.asarray(lba, dtype=float).ravel(), np.asarray(uba, dtype=float).ravel()
-        lbx, ubx = np.asarray(lbx, dtype=float).ravel(), np.asarray(ubx, dtype=float).ravel()
-        bu, bl = np.concatenate([ubx, uba]), np.concatenate([lbx, lba])
-        sense = np.where(bl == bu, 5, 0).astype(np.intc)
-        dual0 = None
-        if lam_a0 is not None or lam_x0 is not None:
-            dual0 = np.concatenate([np.zeros(n) if lam_x0 is None else np.asarray(lam_x0, dtype=float).ravel(),
-                                    np.zeros(m) if lam_a0 is None else np.asarray(lam_a0, dtype=float).ravel()])
-            dual0 = np.nan_to_num(dual0)
-            dual0[sense == 5] = 0.0         # equalities are active from the start anyway
-            if not np.any(dual0):
-                dual0 = None
-        t0, c0 = time.perf_counter(), time.process_time()
-        x, flag, lam = self._call(H, np.asarray(g, dtype=float).ravel(), A, bu, bl, sense, dual0)
-        if dual0 is not None and (flag not in (1, 2, -1) or (flag in (1, 2) and not kkt_holds(
-                H, g, A, lba, uba, lbx, ubx, x, lam[n:], lam[:n]))):
-            # daqp has answered a bad starting set with flag 1 and NaN (or a point that is no optimum):
-            # a warm answer stands only when it satisfies the optimality conditions, else solved cold
-            self.warm_retries += 1
-            x, flag, lam = self._call(H, np.asarray(g, dtype=float).ravel(), A, bu, bl, sense, None)
-        dt, dc = time.perf_counter() - t0, time.process_time() - c0
-        raw = str(flag)
-        if x is None:
-            x, lam, outcome = np.full(n, np.nan), np.full(n + m, np.nan), QPStatus.NUMERICAL
-        else:
-            outcome = classify_status(DAQP_PKG, raw, flag in (1, 2))
-        ok = outcome is QPStatus.OPTIMAL and bool(np.all(np.isfinite(x)))
-        if outcome is QPStatus.OPTIMAL and not ok:
-            outcome = QPStatus.NUMERICAL
-        proven = None
-        if outcome is QPStatus.INFEASIBLE:
-            lam = -lam                      # daqp's Farkas direction -> casadi's sign convention
-            proven = bool(proves_infeasible(A, lba, uba, lbx, ubx, lam[n:]))
-            if not proven:          # daqp 0.11 returns no usable multipliers with most "infeasible"s
-                lam = np.zeros(n + m)
-        return QPSolution(x, lam[n:].copy(), lam[:n].copy(), ok, raw, dt, dc, outcome, DAQP_PKG, proven=proven)
-
-
-def kkt_holds(H, g, A, lba, uba, lbx, ubx, x, lam_a, lam_x, tol: float = 1e-6) -> bool:
-    """True when ``x`` and the multipliers (casadi's sign convention: > 0 upper bound active, < 0 lower)
-    satisfy the optimality conditions of ``min 1/2 x'Hx + g'x, lba <= A x <= uba, lbx <= x <= ubx``
-    (a convex QP: then ``x`` is its optimum) -- stationarity ``H x + g + A' lam_a + lam_x = 0``, primal
-    feasibility and complementarity, each relative to the size of its terms (``tol``)."""
-    if x is None or lam_a is None or not (np.all(np.isfinite(x)) and np.all(np.isfinite(lam_a))
-                                          and np.all(np.isfinite(lam_x))):
-        return False
-    Hx, At = H @ x, A.T @ lam_a
-    r = Hx + g + At + lam_x
-    scale = 1.0 + np.abs(Hx) + np.abs(g) + np.abs(A).T @ np.abs(lam_a) + np.abs(lam_x)
-    if np.any(np.abs(r) > tol * scale):
-        return False
-    ax = A @ x
-    row = 1.0 + np.abs(A) @ np.abs(x)
-    if np.any(ax < lba - tol * row) or np.any(ax > uba + tol * row) or np.any(x < lbx - tol) or np.any(x > ubx + tol):
-        return False
-    big = tol * (1.0 + float(np.max(np.abs(np.r_[lam_a, lam_x]), initial=0.0)))
-    up, lo = lam_a > big, lam_a < -big
-    if np.any(np.abs(ax[up] - uba[up]) > tol * row[up]) or np.any(np.abs(ax[lo] - lba[lo]) > tol * row[lo]):
-        return False
-    up, lo = lam_x > big, lam_x < -big
-    return not (np.any(np.abs(x[up] - ubx[up]) > tol) or np.any(np.abs(x[lo] - lbx[lo]) > tol))
 
 
 class IpoptQP:
