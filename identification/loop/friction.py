@@ -87,9 +87,7 @@ def sim_refine(plant: ModalPlant, data: Data, rounds=("bias", "coulomb", "bias")
             lo, hi = -0.15 * c, 0.15 * c
 
         def cost(x):
-            e = simulate(make(x), data.log, data.windows, passes=1, continuous=False, grid=data.grid,
-                         cache=data.cache).e
-            return float(e @ e)
+            return _sim_sse(make(x), data)
         best, f0 = 0.0, cost(0.0)
         for _ in range(1 + max_shifts):     # an optimum at the end of the interval: the interval moves on
             a, b = best + lo, best + hi
@@ -102,6 +100,13 @@ def sim_refine(plant: ModalPlant, data: Data, rounds=("bias", "coulomb", "bias")
         if best:
             plant = make(best)
     return plant
+
+
+def _sim_sse(plant: ModalPlant, data: Data) -> float:
+    """Output-error sum of squares [track^2] of ``plant`` simulated (``DiscretePlant``, one pass) on
+    ``data``'s windows: the cost both simulation refinements minimise."""
+    e = simulate(plant, data.log, data.windows, passes=1, continuous=False, grid=data.grid, cache=data.cache).e
+    return float(e @ e)
 
 
 def sim_refine_table(plant: ModalPlant, data: Data, knots: int = 5, max_evals: int = 150) -> ModalPlant:
@@ -130,9 +135,7 @@ def sim_refine_table(plant: ModalPlant, data: Data, knots: int = 5, max_evals: i
         return plant.copy(effects=eff)
 
     def cost(x):
-        e = simulate(make(x), data.log, data.windows, passes=1, continuous=False, grid=data.grid,
-                     cache=data.cache).e
-        return float(e @ e)
+        return _sim_sse(make(x), data)
     x0 = np.zeros(K + 1)
     f0 = cost(x0)
     r = minimize(cost, x0, method="Powell", options={"xtol": 2e-3, "ftol": 1e-4, "maxfev": int(max_evals)})

@@ -80,13 +80,14 @@ class DaqpQP:
             if not np.any(dual0):
                 dual0 = None
         t0, c0 = time.perf_counter(), time.process_time()
-        x, flag, lam = self._call(H, np.asarray(g, dtype=float).ravel(), A, bu, bl, sense, dual0)
+        g = np.asarray(g, dtype=float).ravel()
+        x, flag, lam = self._call(H, g, A, bu, bl, sense, dual0)
         if dual0 is not None and (flag not in (1, 2, -1) or (flag in (1, 2) and not kkt_holds(
                 H, g, A, lba, uba, lbx, ubx, x, lam[n:], lam[:n]))):
             # daqp has answered a bad starting set with flag 1 and NaN (or a point that is no optimum):
             # a warm answer stands only when it satisfies the optimality conditions, else solved cold
             self.warm_retries += 1
-            x, flag, lam = self._call(H, np.asarray(g, dtype=float).ravel(), A, bu, bl, sense, None)
+            x, flag, lam = self._call(H, g, A, bu, bl, sense, None)
         dt, dc = time.perf_counter() - t0, time.process_time() - c0
         raw = str(flag)
         if x is None:

@@ -39,13 +39,14 @@ from identification.model.plant import ModalPlant
 
 from seekopt.design import guard as _guard, qp as _qp
 from seekopt.design.blas import blas_limit
-from seekopt.design.predict import play_linear, predict_on_set, set_loop_maps, superposes
-from seekopt.design.metrics import DEFAULT_TAIL_S, played_metrics, worst_case
+from seekopt.design.predict import set_loop_maps
+from seekopt.design.metrics import DEFAULT_TAIL_S
 from seekopt.design.problem import ProblemError, SeekProblem, check_closed_loop
-from seekopt.design.profiles import Profile, exact_rest, finish_profile, reference_from_model, t_bang_bang
+from seekopt.design.profiles import reference_from_model, t_bang_bang
 from seekopt.design.result import DesignError, DesignInfeasible, DesignResult, SolveStats
 from seekopt.design.search import bisect_length, gallop_length, predict_length
 from seekopt.design.solvers import DAQP_PKG, SolverChain
+from seekopt.design.verification import verified_design
 from seekopt.design.working_set import WorkingSetQP
 
 __all__ = ["DesignInfeasible", "DesignError", "DesignResult", "SeekDesigner", "design_seek"]
@@ -426,63 +427,8 @@ class SeekDesigner:
 
     # ------------------------------------------------------------------ verification
     def _finish(self, qp, sol, K, N, stats: SolveStats, objective, strict, settle_n=None) -> DesignResult:
-        """Verify and package the design whose set holds the band from sample ``N`` on (its inputs are
-        ``N`` plus the structure's ``input_tail`` samples long); ``settle_n`` (default ``N``): the sample the
-        nominal plant's band holds from (:meth:`_nominal_first`), checked by the simulator when ``strict``."""
-        n_set = N
-        N = N if settle_n is None else int(settle_n)
-        u, r = qp.unpack(sol.x, K, n_set)
-        u = exact_rest(u, K, self.plant.k0, self.fs, self.imax)
-        if u is None:
-            raise DesignError(f"design misses rest at {K:g} tracks")
-        meta = {"plant_hash": self.plant.hash(), "controller_hash": self.controller.hash(),
-                **({"family_hashes": ";".join(p.hash() for p in self.problem.family)} if self.problem.family else {}),
-                "design_objective": objective, "solver": self.solver_name, "reference": self.reference,
-                "robust": self.robust.to_string() if self.robust else "none",
-                "band_margin": self.beta, "current_margin": self.gamma, "design_settle_samples": N,
-                **({"design_set_settle_samples": n_set} if n_set != N else {})}
-        if self.ignored_effects:
-            meta["effects_not_in_design"] = ";".join(self.ignored_effects)
-        if r is not None:   # jointly designed reference; one closing sample shows the hold (u = 0, r = K)
-            prof = Profile(np.r_[u, 0.0], np.r_[r, K], self.fs, K, self.imax, self.settle, "optimal", len(u), meta)
-        else:
-            prof = finish_profile(u, K, self.fs, self.imax, self._reference_model(), "optimal", self.settle,
-                                  meta=meta)
-            prof.seek_samples = len(u)
-        # the one simulator, played once: a guard on a loop the maps cannot play (it does not superpose)
-        # reads this play's sub-step currents
-        sub = bool(self.guard_bands) and (self._maps is None or not superposes(self.plant))
-        metrics, sim = played_metrics(self.plant, self.controller, prof, settle=self.settle, record_substeps=sub)
-        if not metrics.peak_current_a <= self.imax * (1 + 1e-9):
-            raise DesignError(f"design exceeds Imax in simulation ({metrics.peak_current_a:.4g} A)")
-        if strict and not metrics.settle_time_s * self.fs <= N + 1 + 1e-9:
-            raise DesignError(f"design does not settle by sample {N} in simulation")
-        worst, pred = None, None
-        n_play = max(prof.n + int(round(DEFAULT_TAIL_S * self.fs)), prof.n + 1)
-        maps = self._loop_maps(n_play) if self._maps is not None else None
-        if len(self.plants) > 1:        # honest predictions: every plant of the set, by the one simulator's
-            # responses (plants whose loop superposes) or the simulator itself
-            pred = predict_on_set(self.plants, self.controller, prof, self.settle, self.plant.k0, first=metrics,
-                                  maps=maps)
-            prof.meta.update(pred.to_meta())
-            if self.check_robust:
-                worst = worst_case(pred.metrics)
-        guard = None
-        if self.guard_bands:
-            played = play_linear(maps[0], prof, n_play) if maps is not None and superposes(self.plant) else None
-            guard = _guard.guard_report(self.plant, self.controller, prof, self.guard_bands, self.settle,
-                                        curve=self.guard_curve,
-                                        current_sub=sim.current_sub_a if played is None else played[1])
-            prof.meta.update(guard.to_meta())
-        prof.meta["design_status"] = "verified"
-        return DesignResult(prof, metrics, "verified", stats.t, sol.solver or self.solver_name, objective,
-                            settle_samples=N, n_solves=stats.n,
-                            residual_band=max(qp.residual(sol.x, K, n_set), qp.residual(sol.x, K, N, plants=[0])), worst_metrics=worst,
-                            qp_status=stats.status,
-                            build_time_s=sum(q.build_time_s for q in self._qps.values()),
-                            fallback_solves=stats.fallback, unresolved_solves=len(stats.unresolved),
-                            prediction=pred, guard=guard, set_settle_samples=n_set)
-
+        """Verify and package the design (:func:`seekopt.design.verification.verified_design`)."""
+        return verified_design(self, qp, sol, K, N, stats, objective, strict, settle_n)
 
 def design_seek(plant: ModalPlant, controller, tracks: float, imax: float, settle: float = 0.1,
                 robust=None, **options) -> DesignResult:

@@ -247,11 +247,6 @@ class SolverChain:
         return self.names[0]
 
     @property
-    def sized(self) -> bool:
-        """The primary is built for a fixed row count (casadi): callers pad rows to a few sizes."""
-        return self.names[0] != DAQP_PKG
-
-    @property
     def warm_duals(self) -> bool:
         """The primary takes a starting active set (``lam0`` of :meth:`solve`)."""
         return bool(getattr(self.get(self.names[0]), "warm_duals", False))
