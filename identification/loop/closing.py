@@ -36,6 +36,7 @@ from identification.loop.candidates import CANDIDATES, fit_candidate
 from identification.loop.compensate import compensate, reidentified
 from identification.loop.evidence import dependence, describe_residual, evidence_lines, unexplained_lines
 from identification.loop.fit_engine import Data, refit_base
+from identification.loop.joint import joint_refit, needs_joint_refit
 from identification.loop.residual import Residual, simulate
 from identification.loop.result import LoopResult, Step, errors, improved_fraction
 from identification.loop.settings import LoopSettings
@@ -142,6 +143,23 @@ def _backfit(name: str, cur: _State, fit: Data, val: Data, same: bool, it: int, 
     step = Step(name, F.params, f"re-fitted {why} (backfitting)", cur.val.rms, rv.rms, True, it,
                 float("nan"), rv.fit_percent, improved_fraction(rv, cur.val), 0, F.note, F.plant)
     return step, _State(F.plant, evaluate(F.plant, fit, record=True), rv)
+
+
+def _joint(cur: _State, fit: Data, val: Data, same: bool, it: int, st: LoopSettings, say):
+    """Joint output-error refit by simulation of the base and every accepted effect
+    (:func:`identification.loop.joint.joint_refit`); ``(Step, new state)`` if the validation
+    error drops, else ``(None, cur)``."""
+    p = joint_refit(cur.plant, fit, st.joint_table_knots, st.joint_iters, progress=say)
+    if p is cur.plant:
+        return None, cur
+    rv = evaluate(p, val, same, record=True)
+    if rv.rms >= cur.val.rms:
+        say(f"  joint refit: validation rms {rv.rms:.4g} (not below {cur.val.rms:.4g}): not kept")
+        return None, cur
+    step = Step("joint_refit", {}, "accepted effects and base re-fitted together by simulation", cur.val.rms, rv.rms,
+                True, it, float("nan"), rv.fit_percent, improved_fraction(rv, cur.val), 0,
+                "Levenberg-Marquardt on the output error of DiscretePlant simulations", p)
+    return step, _State(p, evaluate(p, fit, record=True), rv)
 
 
 def reidentified_meta(previous: dict, identification: dict) -> dict:
@@ -266,6 +284,29 @@ def _try_candidates(names, accepted, cur: _State, fit: Data, val: Data, same: bo
     return tried
 
 
+def _proxy_for(best, cur: _State, fit: Data, val: Data, st: LoopSettings) -> list:
+    """The free-form corrections along variables outside the library (:data:`OUT_OF_LIBRARY`)
+    that make the candidate ``best`` (``(Step, fit residual, validation residual)``) a proxy.
+
+    A free-form correction is flexible: on a log with several effects it can take up more of the
+    misfit than any one library effect does, the real one included.  So a correction that lowers
+    the validation RMS by more than ``st.proxy_margin`` beyond the candidate's drop makes it a
+    proxy only if the candidate adds nothing to it: with the same correction fitted on top of
+    the candidate, the validation RMS must not fall more than ``st.proxy_margin`` below the
+    correction's alone (the candidate explains structure the free form does not)."""
+    step, rf, rv = best
+    best_drop = 1 - step.rms_after / cur.val.rms
+    free = [d for d in dependence(cur.plant, fit.freeze(cur.plant, cur.fit), val.freeze(cur.plant, cur.val),
+                                  OUT_OF_LIBRARY)
+            if d.p < st.unexplained_p and d.val_drop > best_drop + st.proxy_margin]
+    if not free or rf is None:
+        return free
+    on_top = {d.name: d for d in dependence(step.plant, fit.freeze(step.plant, rf), val.freeze(step.plant, rv),
+                                            [d.name for d in free])}
+    return [d for d in free
+            if rv.rms * (1 - max(on_top[d.name].val_drop, 0.0)) > (1 - st.proxy_margin) * cur.val.rms * (1 - d.val_drop)]
+
+
 def _passes(step: Step, cur: _State, st: LoopSettings) -> bool:
     if not step.bic_drop > st.min_bic_drop:
         return False
@@ -326,11 +367,9 @@ def close_loop(log: SeekLog, model: ModalPlant, validation: SeekLog | None = Non
         steps += [t[0] for t in tried]
         ok = [t for t in tried if _passes(t[0], cur, st)]
         if ok:      # is the best one only a proxy for structure outside the library?
-            best_drop = 1 - min(t[0].rms_after for t in ok) / cur.val.rms
-            free = [d for d in dependence(cur.plant, fit.freeze(cur.plant, cur.fit), val.freeze(cur.plant, cur.val),
-                                          OUT_OF_LIBRARY)
-                    if d.p < st.unexplained_p and d.val_drop > best_drop + st.proxy_margin]
+            free = _proxy_for(min(ok, key=lambda t: t[0].rms_after), cur, fit, val, st)
             if free:
+                best_drop = 1 - min(t[0].rms_after for t in ok) / cur.val.rms
                 notes.append(f"iteration {it}: the best candidate ({min(ok, key=lambda t: t[0].rms_after)[0].effect}, "
                              f"-{100 * best_drop:.0f} %) explains less than a free-form "
                              + ", ".join(f"{d.name} correction (-{100 * d.val_drop:.0f} %)" for d in free)
@@ -365,6 +404,14 @@ def close_loop(log: SeekLog, model: ModalPlant, validation: SeekLog | None = Non
                              f"effects and the effects re-fitted: validation rms {prev:.4g} -> {cur.val.rms:.4g}"
                              + (f" ({', '.join(absorbed)} re-estimated as part of the linear plant)" if absorbed else ""))
             stage("reidentify", ts, f"iteration {it}: re-identification: validation rms {prev:.4g} -> {cur.val.rms:.4g}")
+        if st.joint_iters and needs_joint_refit(cur.plant):
+            ts = time.time()
+            prev = cur.val.rms
+            s, cur = _joint(cur, fit, val, same, it, st, say)
+            if s is not None:
+                steps.append(s)
+            stage("joint", ts, f"iteration {it}: joint output-error refit by simulation: validation rms {prev:.4g} -> "
+                               f"{cur.val.rms:.4g}")
         cur.rescore(fit)
     ts = time.time()
     # the positions the fit log settled on: position-dependent effects are pinned there by the
