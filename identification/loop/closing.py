@@ -35,7 +35,7 @@ from identification.logs.seeklog import SeekLog
 from identification.loop.candidates import CANDIDATES, fit_candidate
 from identification.loop.compensate import compensate, reidentified
 from identification.loop.evidence import dependence, describe_residual, evidence_lines, unexplained_lines
-from identification.loop.fit_engine import Data, refit_base
+from identification.loop.fit_engine import Data, Fit, refit_base
 from identification.loop.joint import joint_refit, needs_joint_refit
 from identification.loop.residual import Residual, simulate
 from identification.loop.result import LoopResult, Step, errors, improved_fraction
@@ -269,6 +269,8 @@ def _try_candidates(names, accepted, cur: _State, fit: Data, val: Data, same: bo
         if F is None:
             say(f"  {name}: not applicable ({time.time() - tc:.1f} s)")
             continue
+        if needs_joint_refit(cur.plant):
+            F = _held_base(F, cur.plant, fit)
         rv = evaluate(F.plant, val, same, record=True)
         rf, drop = None, float("nan")
         need = 1.0 if F.n_params <= 0 else 1.0 - st.min_validation_drop
@@ -282,6 +284,33 @@ def _try_candidates(names, accepted, cur: _State, fit: Data, val: Data, same: bo
             f"BIC drop {drop:.1f}, {F.n_params:+.3g} parameters, seeks improved {100 * step.improved_fraction:.0f} % "
             f"({time.time() - tc:.1f} s)")
     return tried
+
+
+def _held_base(F, plant: ModalPlant, fit: Data):
+    """A candidate fitted on top of a plant whose effects only its own simulation reproduces
+    (friction, :func:`needs_joint_refit`): the fast engine re-fits the base (``k0``, bias, mode
+    gains, Kt coefficients) against the friction force frozen from one simulation, which does
+    not follow the sticking those changes cause, so after a joint refit by simulation that
+    re-fit can undo it.  The candidate's effect on the base as it was is the alternative; the
+    one with the lower output error on the fit data (simulated) is kept.  Only for candidates
+    that add effects and leave the modes and the delay alone."""
+    if len(F.plant.modes) != len(plant.modes) or F.plant.delay_s != plant.delay_s:
+        return F
+    have = [e for e in plant.effects]
+    eff = []
+    for e in F.plant.effects:
+        same = [h for h in have if h.name == e.name]
+        if same:
+            eff.append(same[0])
+            have.remove(same[0])
+        else:
+            eff.append(e)
+    if have or len(eff) == len(plant.effects):
+        return F
+    alt = plant.copy(effects=eff)
+    if float(np.sum(evaluate(alt, fit).e ** 2)) < float(np.sum(evaluate(F.plant, fit).e ** 2)):
+        return Fit(F.effect, alt, F.n_params, F.params, (F.note + "; " if F.note else "") + "base kept")
+    return F
 
 
 def _proxy_for(best, cur: _State, fit: Data, val: Data, st: LoopSettings) -> list:
