@@ -16,7 +16,11 @@
    ``min_improved_seeks`` of the validation seeks (additions) and (d) no free-form correction
    along a variable outside the library does clearly better (else it is a proxy); earlier
    accepted effects are then re-fitted (backfitting) and the linear plant is re-identified on
-   the log compensated by the effects (:mod:`identification.loop.compensate`);
+   the log compensated by the effects (:mod:`identification.loop.compensate`); when the plant
+   has friction (whose force only its own simulation reproduces, so the fast fits are
+   co-adapted with one simulation's sticking) the base and all accepted effects are then
+   re-fitted together by simulation (:mod:`identification.loop.joint`), kept if the validation
+   RMS drops;
 4. repeats greedily until no candidate passes, then lists in ``unexplained`` the structure
    that is still in the validation residual.
 
@@ -34,9 +38,10 @@ import numpy as np
 from identification.logs.seeklog import SeekLog
 from identification.loop.candidates import CANDIDATES, fit_candidate
 from identification.loop.compensate import compensate, reidentified
-from identification.loop.evidence import dependence, describe_residual, evidence_lines, unexplained_lines
-from identification.loop.fit_engine import Data, Fit, refit_base
-from identification.loop.joint import joint_refit, needs_joint_refit
+from identification.loop.evidence import describe_residual, evidence_lines, unexplained_lines
+from identification.loop.decision import OUT_OF_LIBRARY, passes, proxy_for
+from identification.loop.fit_engine import Data, refit_base
+from identification.loop.joint import held_base, joint_refit, needs_joint_refit
 from identification.loop.residual import Residual, simulate
 from identification.loop.result import LoopResult, Step, errors, improved_fraction
 from identification.loop.settings import LoopSettings
@@ -55,9 +60,6 @@ REPEATABLE = ("extra_mode",)
 #: effects that depend on the head's position (defined on the positions they were fitted on)
 POSITION_EFFECTS = ("position_bias", "torque_constant_variation", "pivot_spring_damper")
 
-#: free-form dependences along variables that no library effect models; a candidate that
-#: explains clearly less than one of them is a proxy and is not accepted
-OUT_OF_LIBRARY = ("gain_vs_time", "force_vs_time", "current_error_vs_current")
 
 
 def _protocol(settings: LoopSettings) -> str:
@@ -270,7 +272,7 @@ def _try_candidates(names, accepted, cur: _State, fit: Data, val: Data, same: bo
             say(f"  {name}: not applicable ({time.time() - tc:.1f} s)")
             continue
         if needs_joint_refit(cur.plant):
-            F = _held_base(F, cur.plant, fit)
+            F = held_base(F, cur.plant, fit)
         rv = evaluate(F.plant, val, same, record=True)
         rf, drop = None, float("nan")
         need = 1.0 if F.n_params <= 0 else 1.0 - st.min_validation_drop
@@ -284,65 +286,6 @@ def _try_candidates(names, accepted, cur: _State, fit: Data, val: Data, same: bo
             f"BIC drop {drop:.1f}, {F.n_params:+.3g} parameters, seeks improved {100 * step.improved_fraction:.0f} % "
             f"({time.time() - tc:.1f} s)")
     return tried
-
-
-def _held_base(F, plant: ModalPlant, fit: Data):
-    """A candidate fitted on top of a plant whose effects only its own simulation reproduces
-    (friction, :func:`needs_joint_refit`): the fast engine re-fits the base (``k0``, bias, mode
-    gains, Kt coefficients) against the friction force frozen from one simulation, which does
-    not follow the sticking those changes cause, so after a joint refit by simulation that
-    re-fit can undo it.  The candidate's effect on the base as it was is the alternative; the
-    one with the lower output error on the fit data (simulated) is kept.  Only for candidates
-    that add effects and leave the modes and the delay alone."""
-    if len(F.plant.modes) != len(plant.modes) or F.plant.delay_s != plant.delay_s:
-        return F
-    have = [e for e in plant.effects]
-    eff = []
-    for e in F.plant.effects:
-        same = [h for h in have if h.name == e.name]
-        if same:
-            eff.append(same[0])
-            have.remove(same[0])
-        else:
-            eff.append(e)
-    if have or len(eff) == len(plant.effects):
-        return F
-    alt = plant.copy(effects=eff)
-    if float(np.sum(evaluate(alt, fit).e ** 2)) < float(np.sum(evaluate(F.plant, fit).e ** 2)):
-        return Fit(F.effect, alt, F.n_params, F.params, (F.note + "; " if F.note else "") + "base kept")
-    return F
-
-
-def _proxy_for(best, cur: _State, fit: Data, val: Data, st: LoopSettings) -> list:
-    """The free-form corrections along variables outside the library (:data:`OUT_OF_LIBRARY`)
-    that make the candidate ``best`` (``(Step, fit residual, validation residual)``) a proxy.
-
-    A free-form correction is flexible: on a log with several effects it can take up more of the
-    misfit than any one library effect does, the real one included.  So a correction that lowers
-    the validation RMS by more than ``st.proxy_margin`` beyond the candidate's drop makes it a
-    proxy only if the candidate adds nothing to it: with the same correction fitted on top of
-    the candidate, the validation RMS must not fall more than ``st.proxy_margin`` below the
-    correction's alone (the candidate explains structure the free form does not)."""
-    step, rf, rv = best
-    best_drop = 1 - step.rms_after / cur.val.rms
-    free = [d for d in dependence(cur.plant, fit.freeze(cur.plant, cur.fit), val.freeze(cur.plant, cur.val),
-                                  OUT_OF_LIBRARY)
-            if d.p < st.unexplained_p and d.val_drop > best_drop + st.proxy_margin]
-    if not free or rf is None:
-        return free
-    on_top = {d.name: d for d in dependence(step.plant, fit.freeze(step.plant, rf), val.freeze(step.plant, rv),
-                                            [d.name for d in free])}
-    return [d for d in free
-            if rv.rms * (1 - max(on_top[d.name].val_drop, 0.0)) > (1 - st.proxy_margin) * cur.val.rms * (1 - d.val_drop)]
-
-
-def _passes(step: Step, cur: _State, st: LoopSettings) -> bool:
-    if not step.bic_drop > st.min_bic_drop:
-        return False
-    if step.n_params <= 0:        # a re-parameterisation with fewer parameters: no worse
-        return step.rms_after <= cur.val.rms
-    return (step.rms_after <= (1 - st.min_validation_drop) * cur.val.rms
-            and step.improved_fraction >= st.min_improved_seeks)
 
 
 def close_loop(log: SeekLog, model: ModalPlant, validation: SeekLog | None = None,
@@ -394,9 +337,9 @@ def close_loop(log: SeekLog, model: ModalPlant, validation: SeekLog | None = Non
         ts = time.time()
         tried = _try_candidates(names, accepted, cur, fit, val, same, it, st, say)
         steps += [t[0] for t in tried]
-        ok = [t for t in tried if _passes(t[0], cur, st)]
+        ok = [t for t in tried if passes(t[0], cur, st)]
         if ok:      # is the best one only a proxy for structure outside the library?
-            free = _proxy_for(min(ok, key=lambda t: t[0].rms_after), cur, fit, val, st)
+            free = proxy_for(min(ok, key=lambda t: t[0].rms_after), cur, fit, val, st)
             if free:
                 best_drop = 1 - min(t[0].rms_after for t in ok) / cur.val.rms
                 notes.append(f"iteration {it}: the best candidate ({min(ok, key=lambda t: t[0].rms_after)[0].effect}, "

@@ -23,12 +23,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from identification.loop.fit_engine import Data, hats
+from identification.loop.fit_engine import Data, Fit, hats
 from identification.loop.residual import simulate
 from identification.model.effects import Friction, PositionBias, TorqueConstantVariation
 from identification.model.plant import ModalPlant
 
-__all__ = ["JointScales", "joint_refit", "needs_joint_refit"]
+__all__ = ["JointScales", "joint_refit", "needs_joint_refit", "held_base"]
 
 #: effects whose force only the model's own state reproduces (fitted on frozen simulations)
 STATE_HELD = (Friction,)
@@ -148,3 +148,34 @@ def joint_refit(plant: ModalPlant, data: Data, table_knots: int = 5, max_iters: 
             break
         f_prev = f
     return make(x) if f < f_start else plant
+
+
+def held_base(F, plant: ModalPlant, fit: Data):
+    """A candidate fitted on top of a plant whose effects only its own simulation reproduces
+    (friction, :func:`needs_joint_refit`): the fast engine re-fits the base (``k0``, bias, mode
+    gains, Kt coefficients) against the friction force frozen from one simulation, which does
+    not follow the sticking those changes cause, so after a joint refit by simulation that
+    re-fit can undo it.  The candidate's effect on the base as it was is the alternative; the
+    one with the lower output error on the fit data (simulated) is kept.  Only for candidates
+    that add effects and leave the modes and the delay alone."""
+    if len(F.plant.modes) != len(plant.modes) or F.plant.delay_s != plant.delay_s:
+        return F
+    have = [e for e in plant.effects]
+    eff = []
+    for e in F.plant.effects:
+        same = [h for h in have if h.name == e.name]
+        if same:
+            eff.append(same[0])
+            have.remove(same[0])
+        else:
+            eff.append(e)
+    if have or len(eff) == len(plant.effects):
+        return F
+    alt = plant.copy(effects=eff)
+
+    def sse(p):
+        e = simulate(p, fit.log, fit.windows, continuous=False, grid=fit.grid, cache=fit.cache).e
+        return float(e @ e)
+    if sse(alt) < sse(F.plant):
+        return Fit(F.effect, alt, F.n_params, F.params, (F.note + "; " if F.note else "") + "base kept")
+    return F
