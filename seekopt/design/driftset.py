@@ -1,5 +1,5 @@
 """The robust set of a drift (:func:`drift_set`): the nominal plant, the family's members, the nominal
-plant at each member's drift, the corners of the common (correlated) drifts, the per-mode corners and a
+plant at each member's drift, the corners and axial points of the common (correlated) drifts, the per-mode corners and a
 few strength-2 orthogonal-array rows over the per-mode ranges; and :func:`drifted`, one plant drifted in
 physical terms.  Each plant carries its ``meta["set_label"]`` and, where its gain differs from the
 design plant's, the drive's feedforward calibration ``meta["ff_scale"]`` (see :mod:`seekopt.design.family`).
@@ -52,16 +52,25 @@ def _vary(nominal: ModalPlant, label: str, temp=0.0, zeta=0.0, gain=0.0, delay=0
 
 
 
-def _common_corners(r, fs):
-    """Corners of the common (correlated) drifts of the ranges ``r`` (:class:`seekopt.design.drift.DriftRanges`)
-    at the sample rate ``fs`` [Hz]: ``(signs, _vary keywords, label)``.
+def _common_points(r, fs):
+    """Plants of the common (correlated) drifts of the ranges ``r`` (:class:`seekopt.design.drift.DriftRanges`)
+    at the sample rate ``fs`` [Hz]: ``(levels, _vary keywords, label)``, each level -1, 0 or +1.
 
     Temperature is one parameter: every frequency x ``(1 + temp T)`` and, when a damping range is
     stated with it, every damping ratio x ``(1 - zeta T)`` (cold: stiffer and less damped, as the
-    benchmark family's x1.04 / x0.8), ``T = +-1``; a damping range without temperature is its own
-    parameter.  Gain (compensated), feedforward calibration error and delay are further parameters.
-    Full factorial up to four parameters, a resolution-V half fraction for five.  Ranges too small to
-    change a seek (a 3-std ``k0`` of 0.005 %, a delay of 0.1 % of a sample) add no corner."""
+    benchmark family's x1.04 / x0.8); a damping range without temperature is its own parameter.  Gain
+    (compensated), feedforward calibration error and delay are further parameters.
+
+    The points: the corners (full factorial up to four parameters, a resolution-V half fraction for
+    five) and, with two parameters or more, the axial points (one parameter at +-1, the others at
+    their nominal value) -- a face-centred design.  Corners alone are not enough: the seek's residual
+    is not monotone along a common frequency scale (the lightly damped low modes' phase at the settle
+    sample turns with it), so a design held on the corners only can leave the band in the middle of a
+    face (measured on the NSS-like drive, ``temp=4%,zeta=20%,gain=5%``, K = 200, band margin 0.9:
+    the set's worst 34 samples, gain +5 % at temperature 0 or temperature +4 % at nominal gain
+    38 samples -- and 66 on an identified plant; with the axial points no grid point of the face
+    settles after the set's worst).  Ranges too small to change a seek (a 3-std ``k0`` of 0.005 %, a
+    delay of 0.1 % of a sample) add no point."""
     params = []
     if r.temp >= 1e-4:
         params.append(("temp", {"temp": r.temp, "zeta": -r.zeta},
@@ -75,17 +84,20 @@ def _common_corners(r, fs):
                                          if nm == "delay" else f"{nm}{'+' if s > 0 else '-'}{100 * w:.3g}%")))
     if not params:
         return []
-    if len(params) <= 4:
-        rows = list(itertools.product((1, -1), repeat=len(params)))
+    n = len(params)
+    if n <= 4:
+        rows = list(itertools.product((1, -1), repeat=n))
     else:
         rows = [t + (int(np.prod(t)),) for t in itertools.product((1, -1), repeat=4)]
+    if n >= 2:
+        rows += [tuple(s if i == j else 0 for i in range(n)) for j in range(n) for s in (1, -1)]
     out = []
-    for signs in rows:
+    for levels in rows:
         kw = {}
-        for (_, d, _), sg in zip(params, signs):
+        for (_, d, _), sg in zip(params, levels):
             for k, v in d.items():
                 kw[k] = kw.get(k, 0.0) + sg * v
-        out.append((signs, kw, " ".join(lab(sg) for (_, _, lab), sg in zip(params, signs))))
+        out.append((levels, kw, " ".join(lab(sg) for (_, _, lab), sg in zip(params, levels) if sg)))
     return out
 
 
@@ -95,8 +107,8 @@ def drift_set(nominal: ModalPlant, family, drift) -> list:
 
     Order: the nominal plant (``set_label`` "nominal"), the family members ("member 1", ...), the
     nominal plant moved by each member's common drift (frequency and damping scale, gain, delay:
-    "nominal at member 1's drift"), the corners of the common drifts (:func:`_common_corners`: temperature with its damping, gain,
-    feedforward gain error, delay: "temp+4% (zeta-20%) gain-5%"), the per-mode corners (every mode's frequency at
+    "nominal at member 1's drift"), the corners and axial points of the common drifts (:func:`_common_points`:
+    temperature with its damping, gain, feedforward gain error, delay: "temp+4% (zeta-20%) gain-5%", "gain+5%"), the per-mode corners (every mode's frequency at
     + its range, at -; every gain at +, at -), then ``drift.n_samples`` orthogonal-array rows
     ("oa 1", ...) over the per-mode ranges (each mode's frequency, damping and gain at +- its
     range: columns of a Sylvester-Hadamard array, strength 2).  Plants that coincide as drives
@@ -111,7 +123,7 @@ def drift_set(nominal: ModalPlant, family, drift) -> list:
     if family:
         for k, (t, z, g, d) in enumerate(family_spread(nominal, family)["members"], 1):
             out.append(_vary(nominal, f"nominal at member {k}'s drift", temp=t, zeta=z, gain=g, delay=d))
-    for signs, kw, label in _common_corners(rng_, nominal.sample_rate_hz):
+    for _, kw, label in _common_points(rng_, nominal.sample_rate_hz):
         out.append(_vary(nominal, label, **kw))
     n = len(nominal.modes)
     for what, arr in (("freq", rng_.df), ("gain", rng_.dg)):   # per-mode corners: every mode at + / at -
