@@ -13,7 +13,7 @@ import numpy as np
 from identification.model.plant import ModalPlant, Mode
 
 from seekopt.design.members import family_spread, member
-from seekopt.design.predict import set_identity
+from seekopt.design.predict import set_identity, set_label
 from seekopt.design.robust import orthogonal_array_signs   # the one Sylvester-Hadamard construction (robust vertices too)
 
 __all__ = ["drifted", "drift_set"]
@@ -101,6 +101,21 @@ def _common_points(r, fs):
     return out
 
 
+def _mode_corners(plant: ModalPlant, r, label: str) -> list:
+    """The per-mode corners about ``plant`` (its feedforward calibration kept): every mode's frequency at
+    + its range ``r.df``, at -; every gain at + ``r.dg``, at - (``r``: :class:`seekopt.design.drift.DriftRanges`)."""
+    out = []
+    for what, arr in (("freq", r.df), ("gain", r.dg)):
+        if np.any(arr > 0):
+            for sgn in (1, -1):
+                modes = [Mode(m.freq_hz * (1 + sgn * a) if what == "freq" else m.freq_hz, m.zeta,
+                              m.gain * (1 + sgn * a) if what == "gain" else m.gain, m.std) for m, a in zip(plant.modes, arr)]
+                meta = dict(plant.meta or {})
+                meta["set_label"] = f"{label} {what} {'+' if sgn > 0 else '-'}"
+                out.append(plant.copy(modes=modes, meta=meta))
+    return out
+
+
 def drift_set(nominal: ModalPlant, family, drift) -> list:
     """The robust set of ``drift`` (a :class:`seekopt.design.drift.Drift`) about ``nominal`` with the members
     of ``family``.
@@ -108,8 +123,9 @@ def drift_set(nominal: ModalPlant, family, drift) -> list:
     Order: the nominal plant (``set_label`` "nominal"), the family members ("member 1", ...), the
     nominal plant moved by each member's common drift (frequency and damping scale, gain, delay:
     "nominal at member 1's drift"), the corners and axial points of the common drifts (:func:`_common_points`:
-    temperature with its damping, gain, feedforward gain error, delay: "temp+4% (zeta-20%) gain-5%", "gain+5%"), the per-mode corners (every mode's frequency at
-    + its range, at -; every gain at +, at -), then ``drift.n_samples`` orthogonal-array rows
+    temperature with its damping, gain, feedforward gain error, delay: "temp+4% (zeta-20%) gain-5%", "gain+5%"), the per-mode corners
+    (every mode's frequency at + its range, at -; every gain at +, at -: "modes freq +"), the same about each member
+    with its own ranges (its reported std and the seek-induced modes' range: "member 1: cold modes gain -"), then ``drift.n_samples`` orthogonal-array rows
     ("oa 1", ...) over the per-mode ranges (each mode's frequency, damping and gain at +- its
     range: columns of a Sylvester-Hadamard array, strength 2).  Plants that coincide as drives
     (:func:`~seekopt.design.predict.set_identity`: the plant and its feedforward calibration) are kept once.
@@ -126,11 +142,12 @@ def drift_set(nominal: ModalPlant, family, drift) -> list:
     for _, kw, label in _common_points(rng_, nominal.sample_rate_hz):
         out.append(_vary(nominal, label, **kw))
     n = len(nominal.modes)
-    for what, arr in (("freq", rng_.df), ("gain", rng_.dg)):   # per-mode corners: every mode at + / at -
-        if np.any(arr > 0):
-            for sgn in (1, -1):
-                kw = {"sf" if what == "freq" else "sg": sgn * arr}
-                out.append(_vary(nominal, f"modes {what} {'+' if sgn > 0 else '-'}", **kw))
+    out += _mode_corners(nominal, rng_, "modes")
+    # each member is an identified plant too: its own reported uncertainty (and the seek-induced modes'
+    # own range) about it, as about the nominal plant -- the band margin is not what covers a member's
+    # identification error (:data:`seekopt.design.problem.DRIFT_BAND_MARGIN`)
+    for p in out[1:1 + len(family)]:
+        out += _mode_corners(p, drift.ranges(p), f"{set_label(p)} modes")
     factors = [(kind, i) for kind, arr in (("f", rng_.df), ("z", rng_.dz), ("g", rng_.dg)) for i in range(n) if arr[i] > 0]
     if drift.n_samples and factors:
         rows = orthogonal_array_signs(factors, drift.n_samples, {"f": n, "z": n, "g": n},
