@@ -289,7 +289,7 @@ def test_nominal_first_keeps_the_worst_case_and_settles_the_nominal_plant_sooner
     design is kept, the nominal plant settles no later (here: sooner, inputs ending at the settle sample)."""
     ctrl, K = Controller.nss(), 200.0
     p = plant()
-    kw = dict(robust=Drift(), input_tail_s=0.0)
+    kw = dict(robust=Drift(), input_tail_s=0.0, band_margin=0.8)   # the case measured (at 0.9 both take 33)
     worst = SeekDesigner(SeekProblem(p, ctrl, 0.3, nominal_first=False, **kw)).design(K)
     lex = SeekDesigner(SeekProblem(p, ctrl, 0.3, **kw)).design(K)
     assert lex.set_settle_samples == worst.settle_samples == lex.profile.seek_samples
