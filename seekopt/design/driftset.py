@@ -66,10 +66,10 @@ def _common_points(r, fs):
     their nominal value) -- a face-centred design.  Corners alone are not enough: the seek's residual
     is not monotone along a common frequency scale (the lightly damped low modes' phase at the settle
     sample turns with it), so a design held on the corners only can leave the band in the middle of a
-    face (measured on the NSS-like drive, ``temp=4%,zeta=20%,gain=5%``, K = 200, band margin 0.9:
-    the set's worst 34 samples, gain +5 % at temperature 0 or temperature +4 % at nominal gain
-    38 samples -- and 66 on an identified plant; with the axial points no grid point of the face
-    settles after the set's worst).  Ranges too small to change a seek (a 3-std ``k0`` of 0.005 %, a
+    face (measured on the NSS-like plant, ``temp=4%,zeta=20%,gain=5%``, K = 200, band margin 0.9:
+    the set's worst 34 samples, temperature +4 % at nominal gain 38, gain -5 % at temperature -3 ... +3 %
+    35; on the identified plant at margin 0.95, gain +5 % at temperature 0 ... +3 % 66 against 33; with
+    the axial points no point of a 9 x 3 grid settles after the set's worst).  Ranges too small to change a seek (a 3-std ``k0`` of 0.005 %, a
     delay of 0.1 % of a sample) add no point."""
     params = []
     if r.temp >= 1e-4:
