@@ -69,8 +69,8 @@ def _common_points(r, fs):
     face (measured on the NSS-like plant, ``temp=4%,zeta=20%,gain=5%``, K = 200, band margin 0.9:
     the set's worst 34 samples, temperature +4 % at nominal gain 38, gain -5 % at temperature -3 ... +3 %
     35; on the identified plant at margin 0.95, gain +5 % at temperature 0 ... +3 % 66 against 33; with
-    the axial points no point of a 9 x 3 grid settles after the set's worst).  Ranges too small to change a seek (a 3-std ``k0`` of 0.005 %, a
-    delay of 0.1 % of a sample) add no point."""
+    the axial points no point of a 9 x 3 grid settles after the set's worst).  Ranges too small to
+    change a seek (a 3-std ``k0`` of 0.005 %, a delay of 0.1 % of a sample) add no point."""
     params = []
     if r.temp >= 1e-4:
         params.append(("temp", {"temp": r.temp, "zeta": -r.zeta},
@@ -109,7 +109,8 @@ def _mode_corners(plant: ModalPlant, r, label: str) -> list:
         if np.any(arr > 0):
             for sgn in (1, -1):
                 modes = [Mode(m.freq_hz * (1 + sgn * a) if what == "freq" else m.freq_hz, m.zeta,
-                              m.gain * (1 + sgn * a) if what == "gain" else m.gain, m.std) for m, a in zip(plant.modes, arr)]
+                              m.gain * (1 + sgn * a) if what == "gain" else m.gain, m.std)
+                         for m, a in zip(plant.modes, arr)]
                 meta = dict(plant.meta or {})
                 meta["set_label"] = f"{label} {what} {'+' if sgn > 0 else '-'}"
                 out.append(plant.copy(modes=modes, meta=meta))
@@ -123,9 +124,10 @@ def drift_set(nominal: ModalPlant, family, drift) -> list:
     Order: the nominal plant (``set_label`` "nominal"), the family members ("member 1", ...), the
     nominal plant moved by each member's common drift (frequency and damping scale, gain, delay:
     "nominal at member 1's drift"), the corners and axial points of the common drifts (:func:`_common_points`:
-    temperature with its damping, gain, feedforward gain error, delay: "temp+4% (zeta-20%) gain-5%", "gain+5%"), the per-mode corners
-    (every mode's frequency at + its range, at -; every gain at +, at -: "modes freq +"), the same about each member
-    with its own ranges (its reported std and the seek-induced modes' range: "member 1: cold modes gain -"), then ``drift.n_samples`` orthogonal-array rows
+    temperature with its damping, gain, feedforward gain error, delay: "temp+4% (zeta-20%) gain-5%",
+    "gain+5%"), the per-mode corners (every mode's frequency at + its range, at -; every gain at +, at -:
+    "modes freq +"), the same about each member with its own ranges (its reported std and the seek-induced
+    modes' range: "member 1: cold modes gain -"), then ``drift.n_samples`` orthogonal-array rows
     ("oa 1", ...) over the per-mode ranges (each mode's frequency, damping and gain at +- its
     range: columns of a Sylvester-Hadamard array, strength 2).  Plants that coincide as drives
     (:func:`~seekopt.design.predict.set_identity`: the plant and its feedforward calibration) are kept once.
