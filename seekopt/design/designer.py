@@ -46,7 +46,7 @@ from seekopt.design.profiles import reference_from_model, t_bang_bang
 from seekopt.design.result import DesignError, DesignInfeasible, DesignResult, SolveStats
 from seekopt.design.search import bisect_length, gallop_length, predict_length
 from seekopt.design.solvers import DAQP_PKG, SolverChain
-from seekopt.design.verification import verified_design
+from seekopt.design.verification import packaged_design, played_design, verified_design
 from seekopt.design.working_set import WorkingSetQP
 
 __all__ = ["DesignInfeasible", "DesignError", "DesignResult", "SeekDesigner", "design_seek"]
@@ -382,12 +382,13 @@ class SeekDesigner:
                 best = self._solve(qp, K, N, self.beta, stats, warm=best.x)
                 if not best.success:
                     continue
-            try:
-                res = self._finish(qp, best, K, N, stats, f"min_settle/{self.objective_kind}", strict=True)
+            try:       # checked now, packaged only when no nominal-first design replaces it
+                played = played_design(self, qp, best, K, N, f"min_settle/{self.objective_kind}", strict=True)
             except DesignError:
                 continue
             self._history[max(n_rigid, 1)] = N
-            return self._nominal_first(qp, best, K, N, stats, max(n_rigid - 2, 0)) or res
+            return self._nominal_first(qp, best, K, N, stats, max(n_rigid - 2, 0)) or packaged_design(
+                self, played, stats)
         raise DesignError(f"no design for {K:g} tracks passed the simulator check up to {c} samples")
 
     def _nominal_first(self, qp, best, K, N, stats: SolveStats, lo: int):
