@@ -194,8 +194,7 @@ class EffectAwareDesigner:
         lin = self.linear.design(K) if linear is None else linear
         # checks on the plant the NLP designs for: output effects (run-out) are the spindle's phase, not
         # the seek's, and no feedforward removes them (the hold check above includes them)
-        lin_m, _ = play_seek(self.nlp_plant, self.controller, lin.profile, T0, settle=self.settle,
-                             horizon_s=st.check_tail_s)
+        lin_m, n_lin, _ = self._accept(lin.profile, K, T0)
         warm, comp, (g_w, o_w) = self._warm_start(K, T0, lin, say)
         dt = 1.0 / (self.fs * self.L)
         uh = hold_current(self.nlp_plant, T0, dt)
@@ -238,9 +237,9 @@ class EffectAwareDesigner:
             cache[n] = (good, v[:n], q[:n], res)
             return good
 
-        # the linear design, played on the full plant, is a verified design too: the NLP searches only
-        # for shorter seeks, and when it finds none the linear design is the answer (never a worse one)
-        n_lin = _verified_samples(lin_m, self.fs, self.imax)
+        # the linear design, accepted on the full plant by the same rule (_accept: the length from which it
+        # holds the rows' margin), is a verified design too: the NLP searches only for shorter seeks, and when
+        # it finds none the linear design is the answer (never a worse one)
         n_cap = st.max_samples if n_lin is None else min(st.max_samples, n_lin - 1)
         if n_cap < 1:
             return self._linear_result(lin, lin_m, K, T0, n_lin, solves, say)
@@ -270,11 +269,8 @@ class EffectAwareDesigner:
             tried += 1
             _, v, q, _ = cache[n]
             prof = self._profile(v, q, K, T0, n, lin, solves)
-            m, sim = play_seek(self.nlp_plant, self.controller, prof, T0, settle=self.settle,
-                               horizon_s=max(st.check_tail_s, (self.accept_tail + 2) / self.fs))
-            held = self._held_margin(sim, prof, K, T0, n)
-            if (m.peak_current_a <= self.imax * (1 + 1e-9) and m.settle_time_s * self.fs <= n + 1 + 1e-9
-                    and held <= st.band_margin * (1 + 1e-6)):
+            m, n_ok, held = self._accept(prof, K, T0, n)
+            if n_ok == n:
                 rec = next(s for s in reversed(solves) if s.n_seek == n)
                 prof.meta.update(guard_excess_band=round(rec.guard_excess, 4),
                                  warm_start_imax_a=round(warm.profile.imax_a, 5))
@@ -290,22 +286,41 @@ class EffectAwareDesigner:
         raise NLPDesignError(f"no effect-aware design of {K:g} tracks from track {T0:g} passed the full-plant "
                              f"check ({tried} candidates from {hi} samples)")
 
-    def _held_margin(self, sim, prof: Profile, K: float, T0: float, n: int) -> float:
-        """Worst ``|PES|`` [band] of a full-plant play over the samples the NLP's band rows cover
-        (``n .. n + accept_tail``, :meth:`SeekProblem.band_tail_samples`): the design is accepted only when
-        it holds there the margin its rows promised (``band_margin``), not merely the band."""
-        pes = np.asarray(sim.true_position_track, float) - (T0 + K)
-        return float(np.max(np.abs(pes[n:n + self.accept_tail + 1]))) / self.settle
+    def _accept(self, prof: Profile, K: float, T0: float, n: int | None = None):
+        """The one acceptance rule of a design (an NLP candidate or the linear fallback): played on the full
+        plant (output effects aside) from ``T0`` by the one simulator, it is accepted at the length ``n``
+        [samples] when its total current stays within Imax, it settles by ``n + 1`` samples and its ``|PES|``
+        stays within the margin its band rows promise (``band_margin`` band) over the samples those rows
+        cover, ``n .. n + accept_tail`` (:meth:`SeekProblem.band_tail_samples`) -- not merely the band.
+
+        ``n`` given: ``(metrics, n or None, worst |PES| [band] over that window)``; ``n`` None: the shortest
+        length at which the design is accepted (None if none within the play), for the linear fallback."""
+        st, tail = self.settings, self.accept_tail
+        horizon = max(st.check_tail_s, (tail + 2) / self.fs) if n is not None else st.check_tail_s + (tail + 2) / self.fs
+        m, sim = play_seek(self.nlp_plant, self.controller, prof, T0, settle=self.settle, horizon_s=horizon)
+        pes = np.abs(np.asarray(sim.true_position_track, float) - (T0 + K)) / self.settle
+        ns = _verified_samples(m, self.fs, self.imax)
+        if ns is None:
+            return m, None, math.inf
+        last = len(pes) - tail - 1                 # the last length whose whole window was played
+        lengths = [int(n)] if n is not None else range(max(ns - 1, 1), last + 1)
+        held = math.inf
+        for k in lengths:
+            held = float(np.max(pes[k:k + tail + 1])) if k <= last else math.inf
+            if k >= ns - 1 and held <= st.band_margin * (1 + 1e-6):
+                return m, k, held
+        return m, None, held
 
     def _linear_result(self, lin: DesignResult, lin_m: SeekMetrics, K, T0, n_lin: int, solves, say):
-        """The linear (QP) design as the answer: it settled on the full plant from ``T0`` within Imax in
-        ``n_lin`` samples and no effect-aware design settled sooner."""
-        say(f"  no effect-aware design settles before the linear design ({n_lin} samples on the full plant): "
-            "the linear design is the answer")
+        """The linear (QP) design as the answer: accepted on the full plant from ``T0`` by the rule every NLP
+        design meets (:meth:`_accept`: within Imax, settled by ``n_lin + 1`` samples, the band margin held over
+        the band rows' samples after ``n_lin``) and no effect-aware design was accepted sooner."""
+        say(f"  no effect-aware design accepted before the linear design ({n_lin} samples on the full plant, "
+            "band margin held): the linear design is the answer")
         prof = copy.deepcopy(lin.profile)
         prof.meta.update(start_track=T0, direction="outward" if K > 0 else "inward", design_status="verified",
                          design_path="linear (no effect-aware design settled sooner)",
-                         effects_in_design="none", ipopt_iterations=sum(s.iterations for s in solves),
+                         effects_in_design="none", design_settle_samples=n_lin, ipopt_iterations=sum(s.iterations for s in solves),
                          ipopt_time_s=round(sum(s.wall_s for s in solves), 3), n_nlp=len(solves))
         return NLPDesignResult(prof, lin_m, T0, n_lin, solves, lin, lin_m,
                                sum(p.build_time_s for p in self._nlps.values()))

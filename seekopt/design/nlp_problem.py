@@ -108,8 +108,8 @@ class NLPSettings:
     max_nlps: int = 6
     max_samples: int = 512
     per_sample_samples: int = 48
-    reference_knots: int = 24
-    feedforward_knots: int = 24
+    arrival_samples: int = 24
+    knot_spacing: int = 4
     friction_step: float = 0.5
     kappa_band: float = 150.0
     kappa_current: float = 600.0
@@ -286,9 +286,9 @@ class SeekNLP:
         self._measure = ca.Function("measure_x", [xr, ur[2]], [self.dp.measure(xr[:nx], ur[2], ops)])
         Kp, aK, T0, imax, uh = (ca.MX.sym(n) for n in ("K", "absK", "T0", "imax", "uhold"))
         x0, w = ca.MX.sym("x0", nz), ca.MX.sym("w", H + 1)
-        per_sample = N <= int(settings.per_sample_samples)
-        nb = self.nb = N if per_sample else min(N, int(settings.reference_knots))
-        nv = self.nv = N if per_sample else min(N, int(settings.feedforward_knots))
+        # correction columns: the most any seek of this class uses (correction_knots); a shorter seek's unused
+        # columns are fixed at 0 (Ipopt takes fixed variables out of its KKT system)
+        nb = nv = self.nb = self.nv = max(len(correction_knots(n, settings)) for n in range(1, N + 1))
         A, CV, C, tt = ca.MX.sym("a"), ca.MX.sym("cv", nv), ca.MX.sym("c", nb), ca.MX.sym("t")
         sc, sg = ca.MX.sym("s_cur"), ca.MX.sym("s_guard")   # elastic slacks: the NLP is always feasible
         vb, Bv = ca.MX.sym("v_base", N), ca.MX.sym("Bv", N, nv)
@@ -379,20 +379,23 @@ class SeekNLP:
         N, H, st = self.N, self.H, self.settings
         if not 0 < nseek <= N:
             raise ValueError(f"seek length {nseek} outside 1..{N}")
-        live = (np.arange(N) < nseek).astype(float)
-        v0, q0 = live * np.clip(v0[:N], -1, 1), live * np.clip(q0[:N], -2, 2)
+        on = (np.arange(N) < nseek).astype(float)
+        v0, q0 = on * np.clip(v0[:N], -1, 1), on * np.clip(q0[:N], -2, 2)
         ne = H + 1
         w = np.zeros(ne); w[nseek:] = st.w_e / (ne - nseek)
         p = np.r_[K, abs(K), T0, imax, uh, x0, w]
         _, e0, _ = self.rollout(x0, v0, q0, K, T0, imax, uh)
-        B, Bv = _hat_basis(nseek, N, self.nb), _hat_basis(nseek, N, self.nv)
+        knots = correction_knots(nseek, st)
+        B = Bv = _hat_basis(knots, N, self.nb)
+        live = len(knots)
         gi, oi = (np.ones(N), np.zeros(N)) if input_map is None else \
-            (np.r_[input_map[0], np.ones(N)][:N], np.r_[input_map[1], np.zeros(N)][:N] * live)
+            (np.r_[input_map[0], np.ones(N)][:N], np.r_[input_map[1], np.zeros(N)][:N] * on)
         p = np.r_[p, v0, Bv.T.ravel(), q0, B.T.ravel(), gi, oi]
         nd = 1 + self.nv + self.nb
         xw = np.r_[np.zeros(nd), float(np.max(np.abs(e0[nseek:]))), 0.1, 0.1]
-        lbx = np.r_[-0.5, np.full(nd - 1, -np.inf), 0.0, 0.0, 0.0]
-        ubx = np.r_[0.5, np.full(nd - 1, np.inf), np.inf, np.inf, np.inf]
+        free = np.r_[np.arange(self.nv) < live, np.arange(self.nb) < live]
+        lbx = np.r_[-0.5, np.where(free, -np.inf, 0.0), 0.0, 0.0, 0.0]
+        ubx = np.r_[0.5, np.where(free, np.inf, 0.0), np.inf, np.inf, np.inf]
         lbg, ubg = np.full(self.ng, -np.inf), np.full(self.ng, np.inf)
         for name, (off, n, smp) in self.blocks.items():
             sl = slice(off, off + n)
@@ -401,7 +404,7 @@ class SeekNLP:
             elif name == "pes_lo":                      # e + t >= 0 after the seek
                 lbg[sl] = np.where(smp >= nseek, 0.0, -np.inf)
             elif name == "ff":
-                lbg[sl], ubg[sl] = -live, live
+                lbg[sl], ubg[sl] = -on, on
             elif name in ("cur_hi", "rob_ihi", "rob_ilo"):
                 ubg[sl] = gamma
             elif name == "cur_lo":
@@ -427,13 +430,30 @@ class SeekNLP:
         return rec, v, q0 + B @ xo[1 + self.nv:nd]
 
 
-def _hat_basis(n: int, nmax: int, nb: int) -> np.ndarray:
-    """``(nmax, nb)`` piecewise-linear hat functions on ``nb`` knots spread over samples ``0..n-1``
-    (zero from ``n`` on): the smooth correction of the reference."""
-    k = np.arange(nmax, dtype=float)
-    knots = np.linspace(0.0, n - 1.0, nb) if nb > 1 else np.array([0.0])
-    h = (knots[1] - knots[0]) if nb > 1 else 1.0
-    B = np.maximum(0.0, 1.0 - np.abs(k[:, None] - knots[None, :]) / h)
-    B[n:] = 0.0
-    return B
+def correction_knots(n: int, settings: NLPSettings) -> np.ndarray:
+    """Knots [samples] of the piecewise-linear corrections of a seek of ``n`` samples (one column each).
 
+    Every sample up to ``per_sample_samples``; beyond, every sample of the last ``arrival_samples``
+    (the arrival, where the loop's tail is shaped) and a knot every ``knot_spacing`` samples before
+    them (the current-limited run, where the warm start's shape is already right)."""
+    n = int(n)
+    if n <= int(settings.per_sample_samples):
+        return np.arange(n, dtype=float)
+    a = min(int(settings.arrival_samples), n)
+    head = n - a                       # samples 0 .. head - 1 on the coarse grid, knot at 0 included
+    coarse = np.arange(0, head, max(int(settings.knot_spacing), 1), dtype=float)
+    return np.unique(np.r_[coarse, np.arange(head, n, dtype=float), n - 1.0])
+
+
+def _hat_basis(knots: np.ndarray, nmax: int, ncol: int) -> np.ndarray:
+    """``(nmax, ncol)``: the piecewise-linear hat of each knot (1 at its knot, 0 at its neighbours),
+    over the samples ``0 .. knots[-1]`` and zero from ``knots[-1] + 1`` on; columns beyond
+    ``len(knots)`` are zero (fixed at 0 by the caller)."""
+    knots = np.asarray(knots, float)
+    k = np.arange(nmax, dtype=float)
+    B = np.zeros((nmax, ncol))
+    n = int(knots[-1]) + 1
+    eye = np.eye(len(knots))
+    for j in range(len(knots)):
+        B[:n, j] = np.interp(k[:n], knots, eye[j])
+    return B
