@@ -52,6 +52,7 @@ from identification.model.ops import SmoothingSettings, casadi_ops
 from identification.model.plant import ModalPlant
 
 import seekopt.design.qp as _qp
+from seekopt.design.nlp_basis import correction_knots, hat_basis
 
 __all__ = ["NLPSettings", "NLPSolve", "nlp_smoothing", "closed_loop_sample", "close_sample", "RobustSpread", "SeekNLP",
            "BUILD_COUNT"]
@@ -78,12 +79,14 @@ class NLPSettings:
     the full-plant check tries (the seek lengthened on failure); ``max_nlps``: NLPs of the length search
     once a feasible length is known; ``kappa_band``, ``kappa_current``:
     sharpness of the smooth maximum over the robust set (log-sum-exp, over-estimates the maximum by
-    at most ``log(n) / kappa``: 0.02 band and 0.005 Imax for 22 plants); ``reference_knots``, ``feedforward_knots``: hat functions of the corrections (per sample for seeks
-    up to ``per_sample_samples``, that many hats beyond; 12 reference knots left a K = 200 seek on Kt 0.88
-    at 2.4x the effect-free settle, the reference being the lever that reshapes the loop's tail, while 64
-    knots on a 71-sample seek with friction took 4.9 s per Ipopt iteration and did not converge in 300 s
-    -- every knot is a dense column of the guard, band and current rows -- against 0.55 s and 58 iterations
-    with 24); ``expand``: evaluate the NLP as SX (slower build, ~10x faster
+    at most ``log(n) / kappa``: 0.02 band and 0.005 Imax for 22 plants); ``per_sample_samples``, ``arrival_samples``, ``knot_spacing``: the corrections' knots
+    (:func:`seekopt.design.nlp_basis.correction_knots`: every sample of seeks up to 32 samples; beyond, every
+    sample of the last 24 -- the arrival, which sets the residual -- and one knot per 4 samples of the run
+    before; a shorter seek's unused columns are fixed at 0).  Measured on the Kt study drive (K = 200 from
+    50 %, loop-fitted plant): per sample up to 48 samples cost 2-6 s per Ipopt iteration at 94-96 columns
+    (309 s for the design), 32/24/4 0.5-0.65 s at 60-62 columns (74 s), both 48 samples (1.818 ms on the model);
+    the former 24 uniform hats beyond 48 samples left that seek to the linear design (6.63 ms on the drive)
+    or to 92 samples, and 64 hats on a 71-sample seek with friction took 4.9 s per iteration (24: 0.55 s); ``expand``: evaluate the NLP as SX (slower build, ~10x faster
     derivatives); ``smoothing``: :class:`~identification.model.ops.SmoothingSettings` of the kinks in
     the NLP (friction sign over at least 20 track/s, saturation corners 2 mA, bias-table corners 50 tracks;
     the full-plant check is exact); ``friction_step``: the friction sign is smoothed at least over the
@@ -107,7 +110,7 @@ class NLPSettings:
     check_steps: int = 6
     max_nlps: int = 6
     max_samples: int = 512
-    per_sample_samples: int = 48
+    per_sample_samples: int = 32
     arrival_samples: int = 24
     knot_spacing: int = 4
     friction_step: float = 0.5
@@ -249,8 +252,8 @@ class SeekNLP:
 
     Condensed like the linear QP (:class:`seekopt.design.qp.SeekQP`): the decision vector is
     ``[v (nmax), c (nb), t]``: the feedforward [Imax], the reference offset ``q = (r - K) / |K| =
-    q_base + B c`` (the warm start's reference plus a smooth correction on ``nb = reference_knots``
-    piecewise-linear hats over the seek) and the worst residual [band];
+    q_base + B c`` (the warm start's reference plus a correction on the piecewise-linear hats of
+    :func:`~seekopt.design.nlp_basis.correction_knots`, as the feedforward's) and the worst residual [band];
     the PES and sub-step currents over ``H = nmax + tail`` samples are those of the nominal
     full-plant loop rolled out from the rest state (``mapaccum`` of the servo-sample function; the
     closed loop is stable, so single shooting is well conditioned).  Parameters
@@ -386,7 +389,7 @@ class SeekNLP:
         p = np.r_[K, abs(K), T0, imax, uh, x0, w]
         _, e0, _ = self.rollout(x0, v0, q0, K, T0, imax, uh)
         knots = correction_knots(nseek, st)
-        B = Bv = _hat_basis(knots, N, self.nb)
+        B = Bv = hat_basis(knots, N, self.nb)
         live = len(knots)
         gi, oi = (np.ones(N), np.zeros(N)) if input_map is None else \
             (np.r_[input_map[0], np.ones(N)][:N], np.r_[input_map[1], np.zeros(N)][:N] * on)
@@ -428,32 +431,3 @@ class SeekNLP:
                        float(xo[nd]) if ok else math.inf, slack, guard_excess)
         v = (1 + xo[0]) * v0 + Bv @ xo[1:1 + self.nv]
         return rec, v, q0 + B @ xo[1 + self.nv:nd]
-
-
-def correction_knots(n: int, settings: NLPSettings) -> np.ndarray:
-    """Knots [samples] of the piecewise-linear corrections of a seek of ``n`` samples (one column each).
-
-    Every sample up to ``per_sample_samples``; beyond, every sample of the last ``arrival_samples``
-    (the arrival, where the loop's tail is shaped) and a knot every ``knot_spacing`` samples before
-    them (the current-limited run, where the warm start's shape is already right)."""
-    n = int(n)
-    if n <= int(settings.per_sample_samples):
-        return np.arange(n, dtype=float)
-    a = min(int(settings.arrival_samples), n)
-    head = n - a                       # samples 0 .. head - 1 on the coarse grid, knot at 0 included
-    coarse = np.arange(0, head, max(int(settings.knot_spacing), 1), dtype=float)
-    return np.unique(np.r_[coarse, np.arange(head, n, dtype=float), n - 1.0])
-
-
-def _hat_basis(knots: np.ndarray, nmax: int, ncol: int) -> np.ndarray:
-    """``(nmax, ncol)``: the piecewise-linear hat of each knot (1 at its knot, 0 at its neighbours),
-    over the samples ``0 .. knots[-1]`` and zero from ``knots[-1] + 1`` on; columns beyond
-    ``len(knots)`` are zero (fixed at 0 by the caller)."""
-    knots = np.asarray(knots, float)
-    k = np.arange(nmax, dtype=float)
-    B = np.zeros((nmax, ncol))
-    n = int(knots[-1]) + 1
-    eye = np.eye(len(knots))
-    for j in range(len(knots)):
-        B[:n, j] = np.interp(k[:n], knots, eye[j])
-    return B
