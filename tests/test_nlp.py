@@ -490,3 +490,38 @@ def test_design_scraping_the_band_past_short_rows_is_not_accepted(ctrl):
     assert _held(sim, res.settle_samples, des.accept_tail) <= 0.8 * (1 + 1e-6)
     if res.profile.kind != "optimal-nlp":
         assert res.profile.meta["design_path"].startswith("linear") and res.metrics.settled
+
+
+# ----------------------------------------------------------------------------- the corrections' basis
+def test_correction_knots_per_sample_short_seeks_arrival_at_full_resolution():
+    """Every sample of a short seek is a knot; a longer seek keeps every sample of its arrival (the last
+    ``arrival_samples``) and a knot at most every ``knot_spacing`` samples before; the count grows with
+    the length (no fixed number of hats whose spacing widens with the seek)."""
+    from seekopt.design.nlp_basis import correction_knots
+    st = NLPSettings(per_sample_samples=32, arrival_samples=24, knot_spacing=4)
+    assert np.array_equal(correction_knots(20, st), np.arange(20))
+    assert np.array_equal(correction_knots(32, st), np.arange(32))
+    counts = []
+    for n in range(33, 400):
+        k = correction_knots(n, st)
+        assert k[0] == 0 and k[-1] == n - 1 and np.all(np.diff(k) > 0)
+        assert np.array_equal(k[-24:], np.arange(n - 24, n))               # the arrival, every sample
+        assert np.max(np.diff(k)) <= 4                                      # the run, every 4 samples
+        counts.append(len(k))
+    assert np.all(np.diff(counts) >= 0) and counts[-1] >= 24 + (399 - 24) / 4
+
+
+def test_hat_basis_interpolates_on_its_knots_and_is_zero_after_the_seek():
+    """The hats are the piecewise-linear interpolation on the knots: a line through the knots' values is
+    reproduced exactly on every sample of the seek, nothing after it; spare columns are zero."""
+    from seekopt.design.nlp_basis import correction_knots, hat_basis
+    st = NLPSettings(per_sample_samples=8, arrival_samples=5, knot_spacing=3)
+    n, nmax = 30, 40
+    k = correction_knots(n, st)
+    B = hat_basis(k, nmax, len(k) + 3)
+    assert B.shape == (nmax, len(k) + 3) and not B[:, len(k):].any() and not B[n:].any()
+    line = 0.3 + 0.05 * np.arange(n)
+    assert np.allclose((B[:, :len(k)] @ (0.3 + 0.05 * k))[:n], line)
+    assert np.allclose(B[:n, :len(k)].sum(axis=1), 1.0)
+    per_sample = hat_basis(correction_knots(8, st), nmax, 8)
+    assert np.array_equal(per_sample[:8], np.eye(8))
