@@ -81,12 +81,14 @@ class NLPSettings:
     sharpness of the smooth maximum over the robust set (log-sum-exp, over-estimates the maximum by
     at most ``log(n) / kappa``: 0.02 band and 0.005 Imax for 22 plants); ``per_sample_samples``, ``arrival_samples``, ``knot_spacing``: the corrections' knots
     (:func:`seekopt.design.nlp_basis.correction_knots`: every sample of seeks up to 32 samples; beyond, every
-    sample of the last 24 -- the arrival, which sets the residual -- and one knot per 4 samples of the run
-    before; a shorter seek's unused columns are fixed at 0).  Measured on the Kt study drive (K = 200 from
-    50 %, loop-fitted plant): per sample up to 48 samples cost 2-6 s per Ipopt iteration at 94-96 columns
-    (309 s for the design), 32/24/4 0.5-0.65 s at 60-62 columns (74 s), both 48 samples (1.818 ms on the model);
-    the former 24 uniform hats beyond 48 samples left that seek to the linear design (6.63 ms on the drive)
-    or to 92 samples, and 64 hats on a 71-sample seek with friction took 4.9 s per iteration (24: 0.55 s); ``expand``: evaluate the NLP as SX (slower build, ~10x faster
+    sample of the last 32 -- the arrival, which sets the residual -- and one knot per 4 samples of the run
+    before; a shorter seek's unused columns are fixed at 0).  Measured on the Kt study drive (K = 200,
+    loop-fitted plant, nominal): from 50 %, per sample up to 48 samples cost 2-6 s per Ipopt iteration at
+    94-96 columns (309 s for the design), 32/24/4 0.5-0.65 s at 60-62 columns (74 s), both 48 samples; from
+    20 %, an arrival of 24 samples ended at 64 samples (2.424 ms on the drive), 32 at 50 (1.970 ms, 104 s);
+    the former rule (per sample to 48, then 24 uniform hats) gave 11.33 / 6.63 / 2.08 ms from 20 / 50 / 80 %
+    with 344 / 356 / 728 s of Ipopt (:mod:`seekopt.design.nlp_basis`); 64 hats on a 71-sample seek with
+    friction took 4.9 s per iteration (24: 0.55 s); ``expand``: evaluate the NLP as SX (slower build, ~10x faster
     derivatives); ``smoothing``: :class:`~identification.model.ops.SmoothingSettings` of the kinks in
     the NLP (friction sign over at least 20 track/s, saturation corners 2 mA, bias-table corners 50 tracks;
     the full-plant check is exact); ``friction_step``: the friction sign is smoothed at least over the
@@ -111,7 +113,7 @@ class NLPSettings:
     max_nlps: int = 6
     max_samples: int = 512
     per_sample_samples: int = 32
-    arrival_samples: int = 24
+    arrival_samples: int = 32
     knot_spacing: int = 4
     friction_step: float = 0.5
     kappa_band: float = 150.0
