@@ -39,15 +39,18 @@ class DaqpQP:
     options : dict, optional
         daqp settings (``iter_limit``, ``primal_tol``, ``dual_tol``, ...), merged over
         ``iter_limit=5000, primal_tol=1e-9`` (the settings :class:`ConicQP` gives casadi's daqp).
+    name : str
+        ``daqp_pkg``, or ``daqp_prox`` for the proximal fallback (:data:`seekopt.design.solvers.PROX_OPTIONS`).
     """
 
     name = DAQP_PKG
     warm_duals = True
 
-    def __init__(self, n: int, m: int, options: dict | None = None):
+    def __init__(self, n: int, m: int, options: dict | None = None, name: str = DAQP_PKG):
         import daqp
         self._daqp = daqp
-        self.n, self.m, self.plugin = int(n), int(m), DAQP_PKG
+        self.n, self.m, self.plugin = int(n), int(m), name
+        self.name = name
         self.settings = {"iter_limit": 5000, "primal_tol": 1e-9}
         self.settings.update(options or {})
         self.warm_retries = 0           # warm starts that failed and were solved cold (statistics)
@@ -93,7 +96,7 @@ class DaqpQP:
         if x is None:
             x, lam, outcome = np.full(n, np.nan), np.full(n + m, np.nan), QPStatus.NUMERICAL
         else:
-            outcome = classify_status(DAQP_PKG, raw, flag in (1, 2))
+            outcome = classify_status(self.name, raw, flag in (1, 2))
         ok = outcome is QPStatus.OPTIMAL and bool(np.all(np.isfinite(x)))
         if outcome is QPStatus.OPTIMAL and not ok:
             outcome = QPStatus.NUMERICAL
@@ -103,7 +106,7 @@ class DaqpQP:
             proven = bool(proves_infeasible(A, lba, uba, lbx, ubx, lam[n:]))
             if not proven:          # daqp 0.11 returns no usable multipliers with most "infeasible"s
                 lam = np.zeros(n + m)
-        return QPSolution(x, lam[n:].copy(), lam[:n].copy(), ok, raw, dt, dc, outcome, DAQP_PKG, proven=proven)
+        return QPSolution(x, lam[n:].copy(), lam[:n].copy(), ok, raw, dt, dc, outcome, self.name, proven=proven)
 
 
 def kkt_holds(H, g, A, lba, uba, lbx, ubx, x, lam_a, lam_x, tol: float = 1e-6) -> bool:

@@ -32,17 +32,26 @@ import numpy as np
 
 from seekopt.design.certificates import farkas_certificate, proves_infeasible  # noqa: F401
 from seekopt.design.daqp_solver import DaqpQP, kkt_holds  # noqa: F401
-from seekopt.design.qp_status import (DAQP_PKG, QPSolution, QPStatus, _nan_safe, _quiet_stdout,  # noqa: F401
+from seekopt.design.qp_status import (DAQP_PKG, DAQP_PROX, QPSolution, QPStatus, _nan_safe, _quiet_stdout,  # noqa: F401
                                       classify_status, dm)
 
 __all__ = ["QPStatus", "classify_status", "QPSolution", "ConicQP", "DaqpQP", "IpoptQP", "make_qp_solver",
-           "SolverChain", "QP_PLUGINS", "DAQP_PKG", "QP_SOLVERS", "dm", "kkt_holds", "proves_infeasible", "farkas_certificate",
+           "SolverChain", "QP_PLUGINS", "DAQP_PKG", "DAQP_PROX", "QP_SOLVERS", "dm", "kkt_holds", "proves_infeasible", "farkas_certificate",
            "constraint_violation"]
 
 #: ``casadi.conic`` plugins the designer accepts.
 QP_PLUGINS = ("daqp", "qpoases", "highs", "osqp", "proxqp", "qrqp")
+#: Time limit [s] of a HiGHS solve (``time_limit``): a fallback that does not finish proves nothing
+#: and the search moves on.
+FALLBACK_LIMIT_S = 2.0
+#: qpOASES working-set recalculations per (variable + row) (``nWSR``; casadi 3.8.2's qpOASES does not
+#: honour its ``CPUtime`` option: measured 15.7 s CPU with ``CPUtime=2``).  Unlimited, qpOASES took
+#: 15-25 s per solve on the ill-conditioned (cond(H) ~ 7e10) whole-row QP of nominal K = 3888 on the truth
+#: plant (222 variables, 1072 rows) where both daqps cycle, and the design ran for minutes; with
+#: 1000 recalculations it stops after 0.6 s CPU.
+QPOASES_NWSR_PER_DIM = 2
 #: Every solver name :func:`make_qp_solver` accepts (``DAQP_PKG``: :class:`DaqpQP`).
-QP_SOLVERS = (DAQP_PKG,) + QP_PLUGINS + ("ipopt",)
+QP_SOLVERS = (DAQP_PKG, DAQP_PROX) + QP_PLUGINS + ("ipopt",)
 
 
 class ConicQP:
@@ -63,7 +72,8 @@ class ConicQP:
             raise ValueError(f"unknown QP plugin {plugin!r} (choose from {', '.join(QP_PLUGINS)})")
         self.n, self.m, self.plugin = int(n), int(m), plugin
         opts = {"error_on_fail": False, "verbose": False}
-        quiet = {"qpoases": {"printLevel": "none"}, "highs": {"highs": {"output_flag": False}},
+        quiet = {"qpoases": {"printLevel": "none", "nWSR": QPOASES_NWSR_PER_DIM * (self.n + self.m)},
+                 "highs": {"highs": {"output_flag": False, "time_limit": FALLBACK_LIMIT_S}},
                  "osqp": {"osqp": {"verbose": False, "eps_abs": 1e-7, "eps_rel": 1e-7, "max_iter": 50000,
                                    "polishing": True}},
                  "proxqp": {"proxqp": {"backend": "dense", "eps_abs": 1e-9}},
@@ -202,11 +212,19 @@ def constraint_violation(A: np.ndarray, x: np.ndarray, lba, uba, lbx, ubx, abs_A
     return float(max(np.max(v), 0.0)) if v.size else 0.0
 
 
+#: :data:`DAQP_PROX`: the daqp package with proximal-point iterations (``eps_prox``) for an
+#: ill-conditioned Hessian: on the whole-row QP of nominal K = 3888 (cond(H) ~ 7e10) where daqp cycles
+#: (exit -2) it answers in ~1 s CPU, within the constraint re-check (violation 3e-16).
+PROX_OPTIONS = {"eps_prox": 1e-6, "iter_limit": 20000, "primal_tol": 1e-9}
+
+
 def make_qp_solver(n: int, m: int, solver: str = DAQP_PKG, options: dict | None = None):
-    """:class:`DaqpQP` for ``solver="daqp_pkg"``, :class:`IpoptQP` for ``"ipopt"``, else :class:`ConicQP`
+    """:class:`DaqpQP` for ``solver="daqp_pkg"`` (and, proximal, ``"daqp_prox"``), :class:`IpoptQP` for ``"ipopt"``, else :class:`ConicQP`
     with that plugin."""
     if solver == DAQP_PKG:
         return DaqpQP(n, m, options)
+    if solver == DAQP_PROX:
+        return DaqpQP(n, m, dict(PROX_OPTIONS, **(options or {})), name=DAQP_PROX)
     return IpoptQP(n, m, options) if solver == "ipopt" else ConicQP(n, m, solver, options)
 
 
@@ -281,7 +299,7 @@ class SolverChain:
             solver = self.get(name)
             if i == 0 and lam0 is not None and getattr(solver, "warm_duals", False):
                 sol = solver.solve(*data, x0=x0, lam_a0=lam0[0], lam_x0=lam0[1])
-            elif name != DAQP_PKG and isinstance(data[2], np.ndarray) and len(data[2]) < self.m:
+            elif name not in (DAQP_PKG, DAQP_PROX) and isinstance(data[2], np.ndarray) and len(data[2]) < self.m:
                 sol = self._padded(solver, data, x0 if i == 0 else None)
             else:
                 sol = solver.solve(*data, x0=x0 if i == 0 else None)
