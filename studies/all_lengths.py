@@ -28,9 +28,10 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import select
+import queue
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -87,14 +88,20 @@ def run_case(plant_name: str, kind: str, ks: list, wall_s: float, log=print) -> 
         cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", plant_name, kind,
                ",".join(f"{k:g}" for k in ks[i:])]
         proc = subprocess.Popen(cmd, env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        lines: queue.Queue = queue.Queue()
+        threading.Thread(target=lambda f=proc.stdout: [lines.put(x) for x in f] + [lines.put(None)],
+                         daemon=True).start()
         limit = wall_s + 30.0           # the first length also pays the imports and the designer's build
+        deadline = time.monotonic() + limit
         while i < len(ks):
-            ready, _, _ = select.select([proc.stdout], [], [], limit)
-            line = proc.stdout.readline() if ready else ""
-            if not line:
+            try:
+                line = lines.get(timeout=max(deadline - time.monotonic(), 0.0))
+            except queue.Empty:
+                line = ""
+            if not line:                # past the wall limit (""), or the worker died (None)
                 proc.kill()
                 proc.wait()
-                if ready:           # the worker died: record it and go on
+                if line is None:
                     rows.append(dict(plant=plant_name, design=kind, K=ks[i], outcome="solver failure",
                                      why=f"worker exited {proc.returncode}", cpu_s=float("nan"), wall_s=float("nan")))
                 else:
@@ -103,10 +110,13 @@ def run_case(plant_name: str, kind: str, ks: list, wall_s: float, log=print) -> 
                 log(json.dumps(rows[-1]))
                 i += 1
                 break
+            if not line.startswith('{"plant"'):      # a solver's banner on stdout (qpOASES): not a result
+                continue
             rows.append(json.loads(line))
             log(line.strip())
             i += 1
             limit = wall_s
+            deadline = time.monotonic() + limit
         else:
             proc.wait()
     return rows
