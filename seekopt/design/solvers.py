@@ -81,6 +81,7 @@ class ConicQP:
                  "daqp": {"daqp": {"iter_limit": 5000, "primal_tol": 1e-9}}}
         opts.update(quiet.get(plugin, {}))
         opts.update(options or {})
+        self.options = opts             # as built (plugin options included)
         sp = {"h": ca.Sparsity.dense(self.n, self.n), "a": ca.Sparsity.dense(self.m, self.n)}
         with _quiet_stdout(plugin == "qpoases"):      # qpOASES prints its licence banner at construction
             self._solver = ca.conic(f"seek_qp_{plugin}", plugin, sp, opts)
