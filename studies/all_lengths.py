@@ -145,6 +145,7 @@ def main(argv=None) -> int:
     ap.add_argument("--n", type=int, default=40)
     ap.add_argument("--kmax", type=float, default=1e5)
     ap.add_argument("--kmin", type=float, default=0.0, help="skip lengths below this (a partial run)")
+    ap.add_argument("--kupto", type=float, default=float("inf"), help="skip lengths above this (a partial run)")
     ap.add_argument("--kinds", default="nominal,robust")
     ap.add_argument("--plants", default="bundled,notch")
     ap.add_argument("--wall", type=float, default=60.0, help="wall limit per design [s]")
@@ -155,7 +156,7 @@ def main(argv=None) -> int:
     if a.worker:
         worker(a.worker[0], a.worker[1], [float(k) for k in a.worker[2].split(",")])
         return 0
-    ks = [k for k in lengths(a.n, a.kmax) if k >= a.kmin]
+    ks = [k for k in lengths(a.n, a.kmax) if a.kmin <= k <= a.kupto]
     rows = []
     for p in a.plants.split(","):
         for d in a.kinds.split(","):
