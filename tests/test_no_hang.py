@@ -147,3 +147,17 @@ def test_guard_rows_are_shared_by_the_designers_of_one_plant(setup, monkeypatch)
     fresh = SeekDesigner(SeekProblem(truth, ctrl, IMAX))
     assert np.array_equal(fresh._structure(32, False).A0, qa.A0)
     assert qb.m > qa.m
+
+
+def test_package_daqp_retries_a_stuck_solve_with_proximal_iterations():
+    """A ``daqp_pkg`` solve that ends at the iteration limit (or cycling) is retried once with proximal
+    iterations (``PROX_OPTIONS``) before the chain's fallbacks are asked: here the limit is made tiny."""
+    from seekopt.design.daqp_solver import DaqpQP
+    data = _box_qp(seed=3)
+    n, m = data[0].shape[0], data[2].shape[0]
+    ref = DaqpQP(n, m).solve(*data)
+    stuck = DaqpQP(n, m, {"iter_limit": 2})
+    sol = stuck.solve(*data)
+    assert stuck.prox_retries == 1
+    assert sol.outcome is QPStatus.OPTIMAL and np.allclose(sol.x, ref.x, atol=1e-6)
+    assert DaqpQP(n, m).prox_retries == 0

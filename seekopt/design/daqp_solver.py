@@ -13,7 +13,13 @@ import numpy as np
 from seekopt.design.certificates import proves_infeasible
 from seekopt.design.qp_status import DAQP_PKG, QPSolution, QPStatus, classify_status
 
-__all__ = ["DaqpQP", "kkt_holds"]
+__all__ = ["DaqpQP", "kkt_holds", "PROX_OPTIONS"]
+
+#: daqp with proximal-point iterations (``eps_prox``) for an ill-conditioned Hessian: on the whole-row QP
+#: of nominal K = 3888 on the truth plant (cond(H) ~ 7e10) where both daqps cycle (exit -2) it answers in
+#: ~1 s CPU within the constraint re-check (violation 3e-16).  :class:`DaqpQP` retries a cycling solve
+#: with it; ``daqp_prox`` is the same as a fallback of its own (a chain whose primary is not the package).
+PROX_OPTIONS = {"eps_prox": 1e-6, "iter_limit": 20000, "primal_tol": 1e-9}
 
 
 class DaqpQP:
@@ -26,7 +32,8 @@ class DaqpQP:
     Warm start: ``lam_a0``/``lam_x0`` (multipliers in casadi's sign convention, e.g. a previous
     answer's mapped to these rows) give daqp its starting active set (``dual_start``: the nonzero
     entries start active).  A warm start that ends in anything but an answer or an infeasibility
-    (a linearly dependent starting set: -6; cycling) is retried cold once.  ``x0`` is not used.
+    (a linearly dependent starting set: -6; cycling) is retried cold once; a cold solve that cycles or
+    hits the iteration limit once more with proximal iterations (:data:`PROX_OPTIONS`).  ``x0`` is not used.
 
     On ``infeasible`` (daqp exit flag -1) the multipliers daqp returns (its Farkas direction, of
     opposite sign to casadi's convention; returned in casadi's) are checked on the data
@@ -54,6 +61,7 @@ class DaqpQP:
         self.settings = {"iter_limit": 5000, "primal_tol": 1e-9}
         self.settings.update(options or {})
         self.warm_retries = 0           # warm starts that failed and were solved cold (statistics)
+        self.prox_retries = 0           # cycling / iteration-limit solves retried with proximal iterations
 
     def _call(self, H, f, A, bu, bl, sense, dual0):
         kw = dict(self.settings)
@@ -91,6 +99,17 @@ class DaqpQP:
             # a warm answer stands only when it satisfies the optimality conditions, else solved cold
             self.warm_retries += 1
             x, flag, lam = self._call(H, g, A, bu, bl, sense, None)
+        if flag in (-2, -4) and "eps_prox" not in self.settings:
+            # cycling or the iteration limit: an ill-conditioned Hessian (cond ~ 1e10 at K >= 3888); the
+            # proximal iterations answer it in ~1 s where casadi's daqp cycles too (PROX_OPTIONS)
+            self.prox_retries += 1
+            kw = dict(self.settings, **PROX_OPTIONS)
+            try:
+                xp, _, fp, ip = self._daqp.solve(H, g, A, bu, bl, sense, **kw)
+                if int(fp) in (1, 2, -1):
+                    x, flag, lam = np.asarray(xp, dtype=float), int(fp), np.asarray(ip["lam"], dtype=float)
+            except (ValueError, RuntimeError):
+                pass
         dt, dc = time.perf_counter() - t0, time.process_time() - c0
         raw = str(flag)
         if x is None:

@@ -31,7 +31,7 @@ import casadi as ca
 import numpy as np
 
 from seekopt.design.certificates import farkas_certificate, proves_infeasible  # noqa: F401
-from seekopt.design.daqp_solver import DaqpQP, kkt_holds  # noqa: F401
+from seekopt.design.daqp_solver import PROX_OPTIONS, DaqpQP, kkt_holds  # noqa: F401
 from seekopt.design.qp_status import (DAQP_PKG, DAQP_PROX, QPSolution, QPStatus, _nan_safe, _quiet_stdout,  # noqa: F401
                                       classify_status, dm)
 
@@ -211,12 +211,6 @@ def constraint_violation(A: np.ndarray, x: np.ndarray, lba, uba, lbx, ubx, abs_A
     v = np.concatenate([(lba - ax) / scale, (ax - uba) / scale, lbx - x, x - ubx])
     v = v[np.isfinite(v)]
     return float(max(np.max(v), 0.0)) if v.size else 0.0
-
-
-#: :data:`DAQP_PROX`: the daqp package with proximal-point iterations (``eps_prox``) for an
-#: ill-conditioned Hessian: on the whole-row QP of nominal K = 3888 (cond(H) ~ 7e10) where daqp cycles
-#: (exit -2) it answers in ~1 s CPU, within the constraint re-check (violation 3e-16).
-PROX_OPTIONS = {"eps_prox": 1e-6, "iter_limit": 20000, "primal_tol": 1e-9}
 
 
 def make_qp_solver(n: int, m: int, solver: str = DAQP_PKG, options: dict | None = None):
