@@ -248,6 +248,9 @@ class WorkingSetQP:
             if out.outcome in (QPStatus.OPTIMAL, QPStatus.INFEASIBLE):
                 out.outcome = QPStatus.NUMERICAL
             out.success, out.status = False, f"{out.status}; {why}"
+            if attempts and attempts[-1][2] != out.outcome.value:      # the re-check's verdict, as the chain's
+                name, status, _ = attempts[-1]
+                attempts[-1] = (name, f"{status}; {why}", out.outcome.value)
             self.last_fallback = why
             return self._done(out, attempts, wall, cpu)
         # the full QP, as without the working set
