@@ -7,6 +7,8 @@ All solvers take ``min 1/2 x'Hx + g'x  s.t. lba <= A x <= uba, lbx <= x <= ubx``
   same dual active-set algorithm as casadi's daqp plugin, 2x less CPU on the design QPs, and it takes
   a starting active set (``lam_a0``/``lam_x0``: the previous length's or round's multipliers); its
   "infeasible" carries ``proven`` (its multipliers checked as a Farkas certificate on the data);
+* ``daqp_prox`` -- :class:`DaqpQP` with proximal iterations (:data:`PROX_OPTIONS`), a fallback for
+  ill-conditioned Hessians where both daqps cycle;
 * :class:`ConicQP` -- ``casadi.conic`` with a QP plugin (``daqp``, ``qpoases``, ``highs``,
   ``osqp``, ``proxqp``, ``qrqp``), built once for a fixed size;
 * :class:`IpoptQP` -- the same problem as an ``Opti`` + Ipopt NLP (``hessian_constant``,
@@ -45,7 +47,7 @@ QP_PLUGINS = ("daqp", "qpoases", "highs", "osqp", "proxqp", "qrqp")
 #: and the search moves on.
 FALLBACK_LIMIT_S = 2.0
 #: qpOASES working-set recalculations per (variable + row) (``nWSR``; casadi 3.8.2's qpOASES does not
-#: honour its ``CPUtime`` option: measured 15.7 s CPU with ``CPUtime=2``).  Unlimited, qpOASES took
+#: honour its ``CPUtime`` option: measured 15.7 s CPU with ``CPUtime=2``).  With casadi's default, qpOASES took
 #: 15-25 s per solve on the ill-conditioned (cond(H) ~ 7e10) whole-row QP of nominal K = 3888 on the truth
 #: plant (222 variables, 1072 rows) where both daqps cycle, and the design ran for minutes; with
 #: 1000 recalculations it stops after 0.6 s CPU.
