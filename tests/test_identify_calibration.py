@@ -174,7 +174,7 @@ def _fit_at(log, truth, modes, **settings):
     s = RobustSettings(ar_order=0, **settings)
     run = _Run(s, log, _split(log, 0)[1], {})
     x = np.r_[np.log([m.freq_hz for m in modes]), np.log([m.zeta for m in modes]), truth.delay_s / log.dt]
-    vp, _ = run.problem((0, None, run.segs), x, white=False)
+    vp, _ = run.problem((0, None, run.segs), x, white=False, residual=True)
     x = run.refine(vp, x, 20)
     c, R = vp.solve(x)[1], len(modes)
     return np.exp(x[:R]), np.exp(x[R:2 * R]), c[2:2 + R] / c[0], (c[2 + R] / c[0] if len(c) > 2 + R else None)
