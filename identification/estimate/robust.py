@@ -8,8 +8,8 @@ b. Joint output-error fit of the measured position to the measured current over 
    after settling they are not -- at the benchmark noise no mode's settle-window response exceeds
    the noise at its frequency), by variable projection (:class:`identification.estimate.varpro.VarPro`):
    ``scipy.optimize.least_squares`` over each mode's frequency and damping and the delay, with the
-   linear parameters (``k0``, ``k0 bias``, ``k0 g_r``, the residual compliance ``k0 D`` of the modes
-   the model does not hold (``residual_fs_multiple``, :class:`VarPro`), per-segment initial position
+   linear parameters (``k0``, ``k0 bias``, ``k0 g_r``, in the final stage the residual compliance ``k0 D``
+   of the modes the model does not hold (``residual_fs_multiple``, :class:`VarPro`), per-segment initial position
    and velocity, run-out harmonics) projected out by LS at every evaluation.  The rigid body and the modes are the
    one discretisation of :mod:`identification.model.discrete` (ZOH, fractional delay, multirate
    sub-step hold when the log has the sub-step currents); each mode's response runs over the whole
