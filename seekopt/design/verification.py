@@ -9,6 +9,8 @@ it reads the designer it verifies for (its problem, maps and built structures), 
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from seekopt.design import guard as _guard
@@ -17,13 +19,22 @@ from seekopt.design.predict import play_linear, predict_on_set, superposes
 from seekopt.design.profiles import Profile, exact_rest, finish_profile
 from seekopt.design.result import DesignError, DesignResult, SolveStats
 
-__all__ = ["verified_design"]
+__all__ = ["verified_design", "played_design", "packaged_design", "PlayedDesign"]
 
 
 def verified_design(self, qp, sol, K, N, stats: SolveStats, objective, strict, settle_n=None) -> DesignResult:
     """Verify and package the design whose set holds the band from sample ``N`` on (its inputs are
     ``N`` plus the structure's ``input_tail`` samples long); ``settle_n`` (default ``N``): the sample the
-    nominal plant's band holds from (:meth:`_nominal_first`), checked by the simulator when ``strict``."""
+    nominal plant's band holds from (:meth:`_nominal_first`), checked by the simulator when ``strict``:
+    :func:`played_design` then :func:`packaged_design`."""
+    return packaged_design(self, played_design(self, qp, sol, K, N, objective, strict, settle_n), stats)
+
+
+def played_design(self, qp, sol, K, N, objective, strict, settle_n=None) -> "PlayedDesign":
+    """The check half of :func:`verified_design`: the profile played once by the one simulator on the
+    design plant, within Imax and (``strict``) settled by its sample, else :class:`DesignError`.  What
+    :func:`packaged_design` adds (the set's predictions, the guard report) decides nothing: a first
+    stage that a nominal-first design replaces is checked, never packaged."""
     n_set = N
     N = N if settle_n is None else int(settle_n)
     u, r = qp.unpack(sol.x, K, n_set)
@@ -52,6 +63,30 @@ def verified_design(self, qp, sol, K, N, stats: SolveStats, objective, strict, s
         raise DesignError(f"design exceeds Imax in simulation ({metrics.peak_current_a:.4g} A)")
     if strict and not metrics.settle_time_s * self.fs <= N + 1 + 1e-9:
         raise DesignError(f"design does not settle by sample {N} in simulation")
+    return PlayedDesign(qp, sol, K, N, n_set, objective, prof, metrics, sim)
+
+
+@dataclass
+class PlayedDesign:
+    """A design that passed the simulator check (:func:`played_design`): the QP structure and answer,
+    the seek ``K`` [track], the nominal plant's settle sample ``N`` and the set's ``n_set``, the
+    profile, its metrics and the play (:class:`seekopt.drive.simulator.SimResult`)."""
+    qp: object
+    sol: object
+    K: float
+    N: int
+    n_set: int
+    objective: str
+    prof: Profile
+    metrics: object
+    sim: object
+
+
+def packaged_design(self, d: PlayedDesign, stats: SolveStats) -> DesignResult:
+    """The :class:`DesignResult` of a checked design: predictions on every plant of the set, the guard
+    report, the solve bookkeeping."""
+    qp, sol, K, N, n_set, objective = d.qp, d.sol, d.K, d.N, d.n_set, d.objective
+    prof, metrics, sim = d.prof, d.metrics, d.sim
     worst, pred = None, None
     n_play = max(prof.n + int(round(DEFAULT_TAIL_S * self.fs)), prof.n + 1)
     maps = self._loop_maps(n_play) if self._maps is not None else None
