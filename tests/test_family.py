@@ -92,8 +92,12 @@ def test_drift_set_correlated_vertices_are_few():
     ps = drift_set(p, [], d)
     labels = [set_label(x) for x in ps]
     assert labels[0] == "nominal" and ps[0].hash() == p.hash()
-    corners = [x for x in ps if set_label(x).startswith("temp")]
+    common = [x for x in ps if set_label(x).startswith(("temp", "gain"))]
+    corners = [x for x in common if "(" in set_label(x) and "gain" in set_label(x)]
     assert len(corners) == 4                        # temperature (with its damping) x gain: two parameters
+    # and the axial points (one parameter at +-1, the other nominal): a face-centred design
+    assert {set_label(x) for x in common} - {set_label(x) for x in corners} == {
+        "temp+4% (zeta-20%)", "temp-4% (zeta+20%)", "gain+5%", "gain-5%"}
     cold = next(x for x in corners if set_label(x).startswith("temp+4% (zeta-20%) gain+5%"))
     assert [m.freq_hz / m0.freq_hz for m, m0 in zip(cold.modes, p.modes)] == pytest.approx([1.04] * 4)
     assert [m.zeta / m0.zeta for m, m0 in zip(cold.modes, p.modes)] == pytest.approx([0.8] * 4)
@@ -248,9 +252,10 @@ def test_plants_differing_only_in_calibration_stay_in_the_set():
     scales = sorted(round(feedforward_scale(q), 9) for q in s)
     assert {0.98, 1.0, 1.02} <= set(scales)
     assert {"ffgain+2%", "ffgain-2%"} <= {set_label(q) for q in s}
-    # temperature x feedforward gain error: all four corners
+    # temperature x feedforward gain error: all four corners, and the four axial points
     s = drift_set(p, [], Drift.from_string("temp=±4%,ffgain=±1%"))
-    assert len([q for q in s if set_label(q).startswith("temp")]) == 4
+    assert len([q for q in s if set_label(q).startswith("temp") and "ffgain" in set_label(q)]) == 4
+    assert len([q for q in s if set_label(q).startswith(("temp", "ffgain"))]) == 8
     from seekopt.design.predict import set_identity
     assert len({set_identity(q) for q in s}) == len(s)
     # identity: the plant and its calibration; the label is not part of it
@@ -284,7 +289,7 @@ def test_nominal_first_keeps_the_worst_case_and_settles_the_nominal_plant_sooner
     design is kept, the nominal plant settles no later (here: sooner, inputs ending at the settle sample)."""
     ctrl, K = Controller.nss(), 200.0
     p = plant()
-    kw = dict(robust=Drift(), input_tail_s=0.0)
+    kw = dict(robust=Drift(), input_tail_s=0.0, band_margin=0.8)   # the case measured (at 0.9 both take 33)
     worst = SeekDesigner(SeekProblem(p, ctrl, 0.3, nominal_first=False, **kw)).design(K)
     lex = SeekDesigner(SeekProblem(p, ctrl, 0.3, **kw)).design(K)
     assert lex.set_settle_samples == worst.settle_samples == lex.profile.seek_samples
@@ -293,3 +298,57 @@ def test_nominal_first_keeps_the_worst_case_and_settles_the_nominal_plant_sooner
     assert lex.prediction.nominal.settle_time_s * FS <= lex.settle_samples + 1 + 1e-9
     for lab, m in zip(lex.prediction.labels, lex.prediction.metrics):
         assert m.settle_time_s * FS <= lex.set_settle_samples + 1 + 1e-9, lab
+
+
+# ------------------------------------------------------------------ session 6: faces, members' ranges, margin
+def test_members_carry_their_own_per_mode_ranges_with_their_calibration():
+    """Each family member is an identified plant: the set holds its own per-mode corners (its reported std,
+    the seek-induced modes' range), played with the member's feedforward calibration."""
+    p = plant()
+    cold = drifted(p, 0.04, -0.2, 0.05)
+    cold.meta["family_name"] = "cold"
+    d = Drift()
+    ps = drift_set(p, [cold], d)
+    mem = {set_label(q): q for q in ps if set_label(q).startswith("member 1: cold modes")}
+    assert set(mem) == {f"member 1: cold modes {w} {s}" for w in ("freq", "gain") for s in "+-"}
+    r = d.ranges(cold)
+    up = mem["member 1: cold modes freq +"]
+    assert [m.freq_hz / m0.freq_hz - 1 for m, m0 in zip(up.modes, cold.modes)] == pytest.approx(list(r.df))
+    assert r.df[0] == pytest.approx(0.05)            # 420 Hz: a seek-induced mode, +-5 %
+    lo = mem["member 1: cold modes gain -"]
+    assert [m.gain / m0.gain - 1 for m, m0 in zip(lo.modes, cold.modes)] == pytest.approx(list(-r.dg))
+    for q in mem.values():
+        assert q.k0 == cold.k0 and feedforward_scale(q) == pytest.approx(p.k0 / cold.k0)
+
+
+def test_default_band_margin_follows_the_set():
+    """0.8 on the nominal plant or a RobustSpec box, 0.9 over a Drift set (whose plants sample the common
+    drifts' faces and carry every identified plant's ranges); a stated margin is kept, JSON keeps it."""
+    from seekopt.design.problem import BAND_MARGIN, DRIFT_BAND_MARGIN
+    from seekopt.design.robust import RobustSpec
+    p, ctrl = plant(), Controller.nss()
+    assert SeekProblem(p, ctrl, 0.3).band_margin == BAND_MARGIN == 0.8
+    assert SeekProblem(p, ctrl, 0.3, robust=RobustSpec()).band_margin == BAND_MARGIN
+    assert SeekProblem(p, ctrl, 0.3, robust="default").band_margin == BAND_MARGIN
+    prob = SeekProblem(p, ctrl, 0.3, robust=Drift())
+    assert prob.band_margin == DRIFT_BAND_MARGIN == 0.9
+    assert SeekProblem.from_json(prob.to_json()).band_margin == DRIFT_BAND_MARGIN
+    assert SeekProblem(p, ctrl, 0.3, robust=Drift(), band_margin=0.75).band_margin == 0.75
+
+
+def test_drift_design_holds_the_faces_of_the_common_drifts():
+    """The seek's residual is not monotone along a common frequency scale: a design held on the corners of
+    temperature x gain alone left the middle of a face (measured: 38 samples at temperature +4 %, nominal
+    gain, against the set's worst 34).  With the axial points, the design played on a 9 x 3 grid of the
+    stated drift (temperature with its damping, compensated gain) settles no later than the worst the
+    design predicts over its set (K = 200, NSS-like plant, the set's default margin)."""
+    from seekopt.drive.presets import default_truth_plant
+    ctrl, K = Controller.nss(), 200.0
+    p = default_truth_plant().linear_part()
+    res = SeekDesigner(SeekProblem(p, ctrl, 0.3, robust=Drift.from_string("temp=±4%,zeta=±20%,gain=±5%"))).design(K)
+    worst = res.prediction.worst_metrics.settle_time_s * FS
+    for t in np.linspace(-0.04, 0.04, 9):
+        for g in (-0.05, 0.0, 0.05):
+            q = calibrated(drifted(p, t, -5.0 * t, g), p.k0)
+            got = evaluate_profile(q, ctrl, played_on(res.profile, q)).settle_time_s * FS
+            assert got <= worst + 1e-9, (t, g, got, worst)

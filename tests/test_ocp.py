@@ -598,23 +598,31 @@ def test_finish_plays_a_loop_that_does_not_superpose_once(monkeypatch):
     assert p.is_linear and not superposes(p)
     des = SeekDesigner(p, ctrl, IMAX)
     assert des.guard_bands
-    sims, per_finish, real_sim, real_finish = [0], [], simmod.simulate_2dof, SeekDesigner._finish
+    import seekopt.design.designer as desmod
+    sims, real_sim = [0], simmod.simulate_2dof
+    plays = {"finish": [], "played": [], "packaged": []}     # simulator runs per call
 
     def counting(*a, **k):
         sims[0] += 1
         return real_sim(*a, **k)
 
-    def finish(self, *a, **k):
-        before = sims[0]
-        try:
-            return real_finish(self, *a, **k)
-        finally:
-            per_finish.append(sims[0] - before)
+    def counted(name, real):
+        def call(*a, **k):
+            before = sims[0]
+            try:
+                return real(*a, **k)
+            finally:
+                plays[name].append(sims[0] - before)
+        return call
     monkeypatch.setattr(simmod, "simulate_2dof", counting)
     monkeypatch.setattr(metmod, "simulate_2dof", counting)
-    monkeypatch.setattr(SeekDesigner, "_finish", finish)
+    monkeypatch.setattr(SeekDesigner, "_finish", counted("finish", SeekDesigner._finish))
+    monkeypatch.setattr(desmod, "played_design", counted("played", desmod.played_design))
+    monkeypatch.setattr(desmod, "packaged_design", counted("packaged", desmod.packaged_design))
     res = des.design(200.0)
-    assert per_finish and all(n == 1 for n in per_finish), per_finish
+    # a verified design: one play (the check, directly or through _finish); packaging plays nothing more
+    assert plays["finish"] + plays["played"] and all(n == 1 for n in plays["finish"] + plays["played"]), plays
+    assert all(n == 0 for n in plays["packaged"]), plays
     monkeypatch.undo()
     assert res.metrics == evaluate_profile(p, ctrl, res.profile, settle=0.1)
     g = guardmod.guard_report(p, ctrl, res.profile, des.guard_bands, 0.1, curve=des.guard_curve)

@@ -239,7 +239,7 @@ def _blas_threads():
     n = int(raw) if raw.isdigit() else 1
     if n == 0:
         return contextlib.nullcontext()
-    from seekopt.evaluate.engines import limit_blas
+    from seekopt.design.blas import limit_blas
     return limit_blas(n, override_env=False)
 
 if __name__ == "__main__":

@@ -1,5 +1,5 @@
 """The robust set of a drift (:func:`drift_set`): the nominal plant, the family's members, the nominal
-plant at each member's drift, the corners of the common (correlated) drifts, the per-mode corners and a
+plant at each member's drift, the corners and axial points of the common (correlated) drifts, the per-mode corners and a
 few strength-2 orthogonal-array rows over the per-mode ranges; and :func:`drifted`, one plant drifted in
 physical terms.  Each plant carries its ``meta["set_label"]`` and, where its gain differs from the
 design plant's, the drive's feedforward calibration ``meta["ff_scale"]`` (see :mod:`seekopt.design.family`).
@@ -13,7 +13,7 @@ import numpy as np
 from identification.model.plant import ModalPlant, Mode
 
 from seekopt.design.members import family_spread, member
-from seekopt.design.predict import set_identity
+from seekopt.design.predict import set_identity, set_label
 from seekopt.design.robust import orthogonal_array_signs   # the one Sylvester-Hadamard construction (robust vertices too)
 
 __all__ = ["drifted", "drift_set"]
@@ -52,16 +52,25 @@ def _vary(nominal: ModalPlant, label: str, temp=0.0, zeta=0.0, gain=0.0, delay=0
 
 
 
-def _common_corners(r, fs):
-    """Corners of the common (correlated) drifts of the ranges ``r`` (:class:`seekopt.design.drift.DriftRanges`)
-    at the sample rate ``fs`` [Hz]: ``(signs, _vary keywords, label)``.
+def _common_points(r, fs):
+    """Plants of the common (correlated) drifts of the ranges ``r`` (:class:`seekopt.design.drift.DriftRanges`)
+    at the sample rate ``fs`` [Hz]: ``(levels, _vary keywords, label)``, each level -1, 0 or +1.
 
     Temperature is one parameter: every frequency x ``(1 + temp T)`` and, when a damping range is
     stated with it, every damping ratio x ``(1 - zeta T)`` (cold: stiffer and less damped, as the
-    benchmark family's x1.04 / x0.8), ``T = +-1``; a damping range without temperature is its own
-    parameter.  Gain (compensated), feedforward calibration error and delay are further parameters.
-    Full factorial up to four parameters, a resolution-V half fraction for five.  Ranges too small to
-    change a seek (a 3-std ``k0`` of 0.005 %, a delay of 0.1 % of a sample) add no corner."""
+    benchmark family's x1.04 / x0.8); a damping range without temperature is its own parameter.  Gain
+    (compensated), feedforward calibration error and delay are further parameters.
+
+    The points: the corners (full factorial up to four parameters, a resolution-V half fraction for
+    five) and, with two parameters or more, the axial points (one parameter at +-1, the others at
+    their nominal value) -- a face-centred design.  Corners alone are not enough: the seek's residual
+    is not monotone along a common frequency scale (the lightly damped low modes' phase at the settle
+    sample turns with it), so a design held on the corners only can leave the band in the middle of a
+    face (measured on the NSS-like plant, ``temp=4%,zeta=20%,gain=5%``, K = 200, band margin 0.9:
+    the set's worst 34 samples, temperature +4 % at nominal gain 38, gain -5 % at temperature -3 ... +3 %
+    35; on the identified plant at margin 0.95, gain +5 % at temperature 0 ... +3 % 66 against 33; with
+    the axial points no point of a 9 x 3 grid settles after the set's worst).  Ranges too small to
+    change a seek (a 3-std ``k0`` of 0.005 %, a delay of 0.1 % of a sample) add no point."""
     params = []
     if r.temp >= 1e-4:
         params.append(("temp", {"temp": r.temp, "zeta": -r.zeta},
@@ -75,17 +84,36 @@ def _common_corners(r, fs):
                                          if nm == "delay" else f"{nm}{'+' if s > 0 else '-'}{100 * w:.3g}%")))
     if not params:
         return []
-    if len(params) <= 4:
-        rows = list(itertools.product((1, -1), repeat=len(params)))
+    n = len(params)
+    if n <= 4:
+        rows = list(itertools.product((1, -1), repeat=n))
     else:
         rows = [t + (int(np.prod(t)),) for t in itertools.product((1, -1), repeat=4)]
+    if n >= 2:
+        rows += [tuple(s if i == j else 0 for i in range(n)) for j in range(n) for s in (1, -1)]
     out = []
-    for signs in rows:
+    for levels in rows:
         kw = {}
-        for (_, d, _), sg in zip(params, signs):
+        for (_, d, _), sg in zip(params, levels):
             for k, v in d.items():
                 kw[k] = kw.get(k, 0.0) + sg * v
-        out.append((signs, kw, " ".join(lab(sg) for (_, _, lab), sg in zip(params, signs))))
+        out.append((levels, kw, " ".join(lab(sg) for (_, _, lab), sg in zip(params, levels) if sg)))
+    return out
+
+
+def _mode_corners(plant: ModalPlant, r, label: str) -> list:
+    """The per-mode corners about ``plant`` (its feedforward calibration kept): every mode's frequency at
+    + its range ``r.df``, at -; every gain at + ``r.dg``, at - (``r``: :class:`seekopt.design.drift.DriftRanges`)."""
+    out = []
+    for what, arr in (("freq", r.df), ("gain", r.dg)):
+        if np.any(arr > 0):
+            for sgn in (1, -1):
+                modes = [Mode(m.freq_hz * (1 + sgn * a) if what == "freq" else m.freq_hz, m.zeta,
+                              m.gain * (1 + sgn * a) if what == "gain" else m.gain, m.std)
+                         for m, a in zip(plant.modes, arr)]
+                meta = dict(plant.meta or {})
+                meta["set_label"] = f"{label} {what} {'+' if sgn > 0 else '-'}"
+                out.append(plant.copy(modes=modes, meta=meta))
     return out
 
 
@@ -95,9 +123,11 @@ def drift_set(nominal: ModalPlant, family, drift) -> list:
 
     Order: the nominal plant (``set_label`` "nominal"), the family members ("member 1", ...), the
     nominal plant moved by each member's common drift (frequency and damping scale, gain, delay:
-    "nominal at member 1's drift"), the corners of the common drifts (:func:`_common_corners`: temperature with its damping, gain,
-    feedforward gain error, delay: "temp+4% (zeta-20%) gain-5%"), the per-mode corners (every mode's frequency at
-    + its range, at -; every gain at +, at -), then ``drift.n_samples`` orthogonal-array rows
+    "nominal at member 1's drift"), the corners and axial points of the common drifts (:func:`_common_points`:
+    temperature with its damping, gain, feedforward gain error, delay: "temp+4% (zeta-20%) gain-5%",
+    "gain+5%"), the per-mode corners (every mode's frequency at + its range, at -; every gain at +, at -:
+    "modes freq +"), the same about each member with its own ranges (its reported std and the seek-induced
+    modes' range: "member 1: cold modes gain -"), then ``drift.n_samples`` orthogonal-array rows
     ("oa 1", ...) over the per-mode ranges (each mode's frequency, damping and gain at +- its
     range: columns of a Sylvester-Hadamard array, strength 2).  Plants that coincide as drives
     (:func:`~seekopt.design.predict.set_identity`: the plant and its feedforward calibration) are kept once.
@@ -111,14 +141,15 @@ def drift_set(nominal: ModalPlant, family, drift) -> list:
     if family:
         for k, (t, z, g, d) in enumerate(family_spread(nominal, family)["members"], 1):
             out.append(_vary(nominal, f"nominal at member {k}'s drift", temp=t, zeta=z, gain=g, delay=d))
-    for signs, kw, label in _common_corners(rng_, nominal.sample_rate_hz):
+    for _, kw, label in _common_points(rng_, nominal.sample_rate_hz):
         out.append(_vary(nominal, label, **kw))
     n = len(nominal.modes)
-    for what, arr in (("freq", rng_.df), ("gain", rng_.dg)):   # per-mode corners: every mode at + / at -
-        if np.any(arr > 0):
-            for sgn in (1, -1):
-                kw = {"sf" if what == "freq" else "sg": sgn * arr}
-                out.append(_vary(nominal, f"modes {what} {'+' if sgn > 0 else '-'}", **kw))
+    out += _mode_corners(nominal, rng_, "modes")
+    # each member is an identified plant too: its own reported uncertainty (and the seek-induced modes'
+    # own range) about it, as about the nominal plant -- the band margin is not what covers a member's
+    # identification error (:data:`seekopt.design.problem.DRIFT_BAND_MARGIN`)
+    for p in out[1:1 + len(family)]:
+        out += _mode_corners(p, drift.ranges(p), f"{set_label(p)} modes")
     factors = [(kind, i) for kind, arr in (("f", rng_.df), ("z", rng_.dz), ("g", rng_.dg)) for i in range(n) if arr[i] > 0]
     if drift.n_samples and factors:
         rows = orthogonal_array_signs(factors, drift.n_samples, {"f": n, "z": n, "g": n},

@@ -25,8 +25,10 @@ common frequency and damping scale and the gain that best map the nominal plant 
 what each mode does beyond that.
 
 :func:`drift_set` samples the drift with few plants: the nominal plant, every family member, the
-corners of the correlated (common) drifts -- a common frequency scale is one parameter, not one per
-mode, so temperature, damping scale, gain and delay give at most 16 corners -- and a few rows of a
+corners and axial points of the correlated (common) drifts -- a common frequency scale is one parameter,
+not one per mode, so temperature, damping scale, gain and delay give at most 16 corners and 8 axial points
+(the residual is not monotone along a frequency scale: corners alone leave the faces' middles out) --,
+every mode at +- its range about the nominal plant and about each member (its own reported std) and a few rows of a
 strength-2 orthogonal array over the independent per-mode ranges (each mode's frequency, damping and
 gain at +- its range; the residual vibration is linear in the gains and its worst case over a box
 sits on vertices).  Each plant carries a label (``plant.meta["set_label"]``) so a design can say which plant of

@@ -21,7 +21,31 @@ from seekopt.design.solvers import DAQP_PKG, QP_SOLVERS
 from seekopt.drive.loopcheck import closed_loop_poles
 
 __all__ = ["ProblemError", "SolverSettings", "SeekProblem", "check_closed_loop", "band_tail_samples", "SIZE_CLASSES",
-           "TAIL_MIN_SAMPLES", "TAIL_CYCLES", "LIGHT_DAMPING", "TAIL_MAX_S"]
+           "TAIL_MIN_SAMPLES", "TAIL_CYCLES", "LIGHT_DAMPING", "TAIL_MAX_S", "BAND_MARGIN", "DRIFT_BAND_MARGIN",
+           "default_band_margin"]
+
+#: Design band (fraction of the settle band) of a design on the nominal plant alone or over a
+#: :class:`RobustSpec` box (corners and orthogonal-array rows: nothing inside the box is sampled, so the
+#: margin also covers the box's interior -- a quadratic model of the PES along one drift direction through
+#: the nominal plant and its two vertices peaks at b0 + bv^2 / (4 b0) = 1.0 for 0.8 / 0.8).
+BAND_MARGIN = 0.8
+#: Design band over a :class:`seekopt.design.family.Drift` set: the set samples the common drifts' faces
+#: (corners and axial points, :func:`seekopt.design.driftset._common_points`; a face's dense grid then
+#: settles no later than the set's worst) and carries the identification's +-n_sigma per-mode ranges, so
+#: the margin covers only what no plant of the set carries (identification error beyond them, unmodelled
+#: modes under the guard, nonlinear effects).  Measured (studies/operating_range.py, the room member's
+#: truth played on a grid of its temperature x gain drift, K = 200): 0.9 settles within 1.06x the set's
+#: predicted worst; 0.95 leaves the band for 66 samples at temperature +1 %, gain +5 % (set: 33).
+DRIFT_BAND_MARGIN = 0.9
+
+
+def default_band_margin(robust) -> float:
+    """:data:`DRIFT_BAND_MARGIN` for a :class:`~seekopt.design.family.Drift` set, else :data:`BAND_MARGIN`."""
+    return DRIFT_BAND_MARGIN if _is_drift(robust) else BAND_MARGIN
+
+
+def _is_drift(robust) -> bool:
+    return robust is not None and getattr(robust, "to_dict", lambda: {})().get("kind") == "drift"
 
 #: Seek-length classes [samples]: one QP structure (and solver) per class, built on first use.  Above
 #: 128 samples (seeks of about 2500 tracks and longer) the classes are 1/8 to 1/4 apart: the dense QP's
@@ -62,7 +86,10 @@ class SolverSettings:
         cycling), an iteration limit or an answer that fails the constraint re-check -- before
         anything is called infeasible (:class:`seekopt.design.solvers.SolverChain`).  The first
         fallback also re-checks an "infeasible" of ``daqp_pkg`` that the answer rests on (the package
-        returns no usable multipliers with it; :class:`seekopt.design.working_set.WorkingSetQP`).
+        returns no usable multipliers with it; :class:`seekopt.design.working_set.WorkingSetQP`);
+        ``daqp_prox`` (the package with proximal iterations) answers where an ill-conditioned Hessian
+        makes both daqps cycle; every fallback has an iteration or time limit (a failed fallback proves
+        nothing: the length is skipped, never waited on).
     options : dict
         ``{solver name: plugin options}``.
     max_samples : int
@@ -89,7 +116,7 @@ class SolverSettings:
     """
 
     qp_solver: str = DAQP_PKG
-    fallbacks: tuple = ("daqp", "qpoases", "highs")
+    fallbacks: tuple = ("daqp", "daqp_prox", "qpoases", "highs")
     options: dict = field(default_factory=dict)
     max_samples: int = 512
     size_classes: tuple = SIZE_CLASSES
@@ -143,9 +170,12 @@ class SeekProblem:
         Current limit [A] on the total current (feedforward + feedback + hold, every sub-step).
     settle_band_track : float
         Settle band [track] (``|PES| <= band`` from the settle time on).
-    band_margin : float
-        ``beta``: design band as a fraction of the settle band (0.8 keeps 20 % for what the robust
-        set does not cover; at K = 200 on the identified plant 0.7 -> 2.12 T_bb, 0.8 -> 1.93, 0.9 -> 1.80).
+    band_margin : float or None
+        ``beta``: design band as a fraction of the settle band, kept for what the plant set does not
+        cover.  None: :func:`default_band_margin` (0.8 on the nominal plant or a :class:`RobustSpec` box,
+        0.9 over a :class:`~seekopt.design.family.Drift` set, whose plants sample the interior of the
+        common drifts; at K = 200 on the identified plant with ``RobustSpec()`` 0.7 -> 2.12 T_bb,
+        0.8 -> 1.93, 0.9 -> 1.80).
     current_margin : float
         ``gamma``: design current limit as a fraction of ``imax_a``.
     robust : RobustSpec, Drift or None
@@ -190,7 +220,7 @@ class SeekProblem:
     controller: object
     imax_a: float
     settle_band_track: float = 0.1
-    band_margin: float = 0.8
+    band_margin: float | None = None
     current_margin: float = 0.97
     robust: RobustSpec | None = None
     family: list = field(default_factory=list)
@@ -210,14 +240,16 @@ class SeekProblem:
     def __post_init__(self):
         self.imax_a = _positive("imax", self.imax_a)
         self.settle_band_track = _positive("settle band", self.settle_band_track)
+        if isinstance(self.robust, str):
+            self.robust = None if self.robust.lower() == "none" else RobustSpec.from_string(self.robust)
+        if self.band_margin is None:
+            self.band_margin = default_band_margin(self.robust)
         for name in ("band_margin", "current_margin"):
             v = getattr(self, name)
             if not (math.isfinite(v) and 0 < v <= 1):
                 raise ProblemError(f"{name} must be in (0, 1] (got {v!r})")
         if self.reference not in ("free", "model", "rigid"):
             raise ProblemError(f"reference must be 'free', 'model' or 'rigid', not {self.reference!r}")
-        if isinstance(self.robust, str):
-            self.robust = None if self.robust.lower() == "none" else RobustSpec.from_string(self.robust)
         self.family = list(self.family or [])
         if self.slew_a_per_s is not None:
             self.slew_a_per_s = _positive("slew", self.slew_a_per_s)
@@ -247,7 +279,7 @@ class SeekProblem:
         from seekopt.design.family import label_set
         if self.robust is None:
             return label_set([self.plant], self.family)
-        if getattr(self.robust, "to_dict", lambda: {})().get("kind") == "drift":
+        if _is_drift(self.robust):
             return self.robust.plants(self.plant, self.family)
         return label_set(self.robust.plants(self.plant), self.family)
 

@@ -1,5 +1,6 @@
 """The verification of a designed seek: the QP's answer unpacked to a profile at rest, played once by the
-one simulator (:func:`seekopt.design.metrics.played_metrics`) on the design plant -- within Imax, settled
+one simulator (:func:`seekopt.design.metrics.played_metrics`, or its impulse responses convolved for a
+plant whose loop superposes) on the design plant -- within Imax, settled
 by its sample when asked --, the honest predictions on every plant of the robust set
 (:func:`seekopt.design.predict.predict_on_set`) and the unmodelled-mode guard's report
 (:func:`seekopt.design.guard.guard_report`), packaged as a :class:`DesignResult`.
@@ -9,21 +10,32 @@ it reads the designer it verifies for (its problem, maps and built structures), 
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from seekopt.design import guard as _guard
-from seekopt.design.metrics import DEFAULT_TAIL_S, played_metrics, worst_case
-from seekopt.design.predict import play_linear, predict_on_set, superposes
+from seekopt.design.metrics import DEFAULT_TAIL_S, played_metrics, seek_metrics, worst_case
+from seekopt.design.predict import feedforward_scale, play_linear, predict_on_set, superposes
 from seekopt.design.profiles import Profile, exact_rest, finish_profile
 from seekopt.design.result import DesignError, DesignResult, SolveStats
 
-__all__ = ["verified_design"]
+__all__ = ["verified_design", "played_design", "packaged_design", "PlayedDesign"]
 
 
 def verified_design(self, qp, sol, K, N, stats: SolveStats, objective, strict, settle_n=None) -> DesignResult:
     """Verify and package the design whose set holds the band from sample ``N`` on (its inputs are
     ``N`` plus the structure's ``input_tail`` samples long); ``settle_n`` (default ``N``): the sample the
-    nominal plant's band holds from (:meth:`_nominal_first`), checked by the simulator when ``strict``."""
+    nominal plant's band holds from (:meth:`_nominal_first`), checked by the simulator when ``strict``:
+    :func:`played_design` then :func:`packaged_design`."""
+    return packaged_design(self, played_design(self, qp, sol, K, N, objective, strict, settle_n), stats)
+
+
+def played_design(self, qp, sol, K, N, objective, strict, settle_n=None) -> "PlayedDesign":
+    """The check half of :func:`verified_design`: the profile played once by the one simulator on the
+    design plant, within Imax and (``strict``) settled by its sample, else :class:`DesignError`.  What
+    :func:`packaged_design` adds (the set's predictions, the guard report) decides nothing: a first
+    stage that a nominal-first design replaces is checked, never packaged."""
     n_set = N
     N = N if settle_n is None else int(settle_n)
     u, r = qp.unpack(sol.x, K, n_set)
@@ -44,14 +56,53 @@ def verified_design(self, qp, sol, K, N, stats: SolveStats, objective, strict, s
         prof = finish_profile(u, K, self.fs, self.imax, self._reference_model(), "optimal", self.settle,
                               meta=meta)
         prof.seek_samples = len(u)
-    # the one simulator, played once: a guard on a loop the maps cannot play (it does not superpose)
-    # reads this play's sub-step currents
-    sub = bool(self.guard_bands) and (self._maps is None or not superposes(self.plant))
-    metrics, sim = played_metrics(self.plant, self.controller, prof, settle=self.settle, record_substeps=sub)
+    metrics, sim = _play(self, prof)
     if not metrics.peak_current_a <= self.imax * (1 + 1e-9):
         raise DesignError(f"design exceeds Imax in simulation ({metrics.peak_current_a:.4g} A)")
     if strict and not metrics.settle_time_s * self.fs <= N + 1 + 1e-9:
         raise DesignError(f"design does not settle by sample {N} in simulation")
+    return PlayedDesign(qp, sol, K, N, n_set, objective, prof, metrics, sim)
+
+
+def _play(self, prof: Profile):
+    """``(metrics, play)`` of ``prof`` on the design plant.  A plant whose loop superposes
+    (:func:`~seekopt.design.predict.superposes`, no feedforward calibration of its own) is played by
+    :func:`~seekopt.design.predict.play_linear` on the designer's maps when they are long enough (the
+    one simulator's own impulse responses, convolved: the same traces without the per-sample loop;
+    ``play`` is then None); any other plant by the one simulator, once -- a guard on a loop the maps
+    cannot play reads that play's sub-step currents."""
+    maps = self._maps
+    n_play = max(prof.n + int(round(DEFAULT_TAIL_S * self.fs)), prof.n + 1)
+    if maps is not None and superposes(self.plant) and feedforward_scale(self.plant) == 1.0:
+        played = play_linear(maps[0], prof, n_play)
+        if played is not None:
+            pes, cur = played
+            return seek_metrics(pes, float(np.max(np.abs(cur))), prof, self.fs, self.settle, self.plant.k0), None
+    sub = bool(self.guard_bands) and (maps is None or not superposes(self.plant))
+    return played_metrics(self.plant, self.controller, prof, settle=self.settle, record_substeps=sub)
+
+
+@dataclass
+class PlayedDesign:
+    """A design that passed the simulator check (:func:`played_design`): the QP structure and answer,
+    the seek ``K`` [track], the nominal plant's settle sample ``N`` and the set's ``n_set``, the
+    profile, its metrics and the play (:class:`seekopt.drive.simulator.SimResult`)."""
+    qp: object
+    sol: object
+    K: float
+    N: int
+    n_set: int
+    objective: str
+    prof: Profile
+    metrics: object
+    sim: object
+
+
+def packaged_design(self, d: PlayedDesign, stats: SolveStats) -> DesignResult:
+    """The :class:`DesignResult` of a checked design: predictions on every plant of the set, the guard
+    report, the solve bookkeeping."""
+    qp, sol, K, N, n_set, objective = d.qp, d.sol, d.K, d.N, d.n_set, d.objective
+    prof, metrics, sim = d.prof, d.metrics, d.sim
     worst, pred = None, None
     n_play = max(prof.n + int(round(DEFAULT_TAIL_S * self.fs)), prof.n + 1)
     maps = self._loop_maps(n_play) if self._maps is not None else None

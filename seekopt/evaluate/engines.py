@@ -18,7 +18,8 @@ payload never stops the others:
 Worker processes of :func:`make_pool` (set up by :func:`_worker_init`):
 
 * **one BLAS thread each** -- seekopt sets ``OMP_NUM_THREADS``, ``OPENBLAS_NUM_THREADS``,
-  ``MKL_NUM_THREADS`` to 1 and limits an already loaded BLAS with threadpoolctl: the design's
+  ``MKL_NUM_THREADS`` to 1 and limits an already loaded BLAS with threadpoolctl
+  (:func:`seekopt.design.blas.limit_blas`, the limiter the designer uses too): the design's
   matrices are small, and several workers with several BLAS threads each oversubscribe the
   cores (Dask's nanny does the same for its workers; :func:`worker_held` applies it on any
   other Dask worker);
@@ -40,10 +41,11 @@ import threading
 import time
 import uuid
 
+from seekopt.design.blas import limit_blas
+
 __all__ = ["EngineError", "Engine", "SerialEngine", "PoolEngine", "DaskEngine", "make_engine", "make_pool",
            "worker_held", "one_blas_thread", "limit_blas", "one_line"]
 
-_BLAS_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "VECLIB_MAXIMUM_THREADS")
 _PR_SET_PDEATHSIG = 1
 
 
@@ -58,27 +60,9 @@ def one_line(exc: BaseException) -> str:
 
 
 # ------------------------------------------------------------------ worker set-up
-def limit_blas(n: int = 1, *, override_env: bool = True):
-    """Limit this process to ``n`` BLAS/OpenMP threads; returns the :mod:`threadpoolctl` limiter (also a
-    context manager that restores the previous limits on exit).
-
-    The environment variables cover libraries loaded later (``override_env=False`` keeps a value the
-    user set).  numpy and scipy each bring their own OpenBLAS, and threadpoolctl limits only the
-    libraries already loaded: both are loaded first, so the one loaded second does not escape.
-    """
-    for var in _BLAS_VARS:
-        if override_env:
-            os.environ[var] = str(n)
-        else:
-            os.environ.setdefault(var, str(n))
-    import numpy  # noqa: F401
-    import scipy.linalg  # noqa: F401
-    from threadpoolctl import threadpool_limits
-    return threadpool_limits(limits=n)
-
-
 def one_blas_thread() -> None:
-    """Limit this (worker) process to one BLAS/OpenMP thread (:func:`limit_blas`)."""
+    """Limit this (worker) process to one BLAS/OpenMP thread (:func:`seekopt.design.blas.limit_blas`, the one
+    limiter; re-exported here)."""
     limit_blas(1)
 
 
