@@ -195,15 +195,15 @@ def test_length_search_does_not_crawl_on_a_flat_residual(first_feasible):
 def test_a_timeout_is_a_length_not_shown_feasible(ctrl):
     """An Ipopt time-out at one candidate length is not fatal and never a profile: the length search
     moves on; here every NLP times out, so the answer is the linear design verified on the full plant
-    (every NLP recorded with its status); a design that runs out of its own wall time raises."""
-    des = EffectAwareDesigner(kt_plant(), ctrl, IMAX, 0.1, None, NLPSettings(nlp_wall_s=1e-3, tail_s=0.002))
+    (every NLP recorded with its status); a design that runs out of its own CPU time raises."""
+    des = EffectAwareDesigner(kt_plant(), ctrl, IMAX, 0.1, None, NLPSettings(nlp_cpu_s=1e-3, tail_s=0.002))
     res = des.design(10.0, 12000.0)
     assert res.profile.kind != "optimal-nlp" and res.profile.meta["design_path"].startswith("linear")
     assert len(res.solves) >= 2 and all(not s.success for s in res.solves)
     assert {s.status for s in res.solves} <= {"Maximum_WallTime_Exceeded", "Maximum_CpuTime_Exceeded"}
     assert len({s.n_seek for s in res.solves}) == len(res.solves)        # moved on: each length once
     assert res.metrics.settled and res.metrics.peak_current_a <= IMAX * (1 + 1e-9)
-    des = EffectAwareDesigner(kt_plant(), ctrl, IMAX, 0.1, None, NLPSettings(design_wall_s=0.0, tail_s=0.002))
+    des = EffectAwareDesigner(kt_plant(), ctrl, IMAX, 0.1, None, NLPSettings(design_cpu_s=0.0, tail_s=0.002))
     with pytest.raises(NLPDesignError, match="ran out of time"):
         des.design(10.0, 12000.0)
 

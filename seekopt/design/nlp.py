@@ -189,7 +189,7 @@ class EffectAwareDesigner:
         hc = hold_check(self.plant, self.controller, T0 + K, self.settle)
         if not hc.holds:
             raise DesignUnholdable(hc.message())
-        t_begin = time.perf_counter()
+        t_begin = time.process_time()
         st = self.settings
         say(f"linear design (QP) for {K:g} tracks")
         lin = self.linear.design(K) if linear is None else linear
@@ -210,9 +210,9 @@ class EffectAwareDesigner:
         def feasible(n):
             if n in cache:
                 return cache[n][0]
-            if time.perf_counter() - t_begin > st.design_wall_s:
+            if time.process_time() - t_begin > st.design_cpu_s:
                 raise NLPDesignError(f"design of {K:g} tracks from track {T0:g} ran out of time "
-                                     f"({st.design_wall_s:g} s, {len(solves)} NLPs)")
+                                     f"({st.design_cpu_s:g} s CPU, {len(solves)} NLPs)")
             if len(solves) >= st.max_nlps and any(ok for ok, *_ in cache.values()):
                 raise _Budget()
             nlp, spread = self._nlp(n)
@@ -254,7 +254,7 @@ class EffectAwareDesigner:
             late = sum(s.status in _TIMEOUTS for s in solves)
             raise NLPDesignError(f"no effect-aware design of {K:g} tracks from track {T0:g} within "
                                  f"{st.max_samples} samples ({len(solves)} NLPs"
-                                 + (f", {late} timed out at {st.nlp_wall_s:g} s" if late else "")
+                                 + (f", {late} timed out at {st.nlp_cpu_s:g} s CPU" if late else "")
                                  + f"; last: {solves[-1].status if solves else 'no NLP'})")
         # verify on the full plant; step up on failure
         tried = 0

@@ -74,8 +74,9 @@ class NLPSettings:
     (smoothness of ``u_ff`` and ``r``, tail energy, worst residual); ``w_slack``: weight of the elastic
     slacks on the current and guard rows (exact penalty: the NLP is feasible at every length, a length
     is feasible when the current slack ends below ``slack_tol``; the guard's excess is recorded -- the
-    NLP's smooth feedforward correction cannot always shape the spectrum as the QP's free samples do); ``nlp_wall_s``: Ipopt wall-time
-    limit per solve; ``design_wall_s``: for a whole design; ``check_steps``: how many candidates
+    NLP's smooth feedforward correction cannot always shape the spectrum as the QP's free samples do); ``nlp_cpu_s``: Ipopt CPU-time
+    limit per solve (``max_cpu_time``: CPU, not wall, so that a design does not depend on the machine's load);
+    ``design_cpu_s``: the process CPU time for a whole design; ``check_steps``: how many candidates
     the full-plant check tries (the seek lengthened on failure); ``max_nlps``: NLPs of the length search
     once a feasible length is known; ``kappa_band``, ``kappa_current``:
     sharpness of the smooth maximum over the robust set (log-sum-exp, over-estimates the maximum by
@@ -106,8 +107,8 @@ class NLPSettings:
     w_t: float = 10.0
     max_iter: int = 300
     tol: float = 1e-7
-    nlp_wall_s: float = 300.0
-    design_wall_s: float = 1800.0
+    nlp_cpu_s: float = 300.0
+    design_cpu_s: float = 1800.0
     check_tail_s: float = 0.015
     check_steps: int = 6
     max_nlps: int = 6
@@ -356,7 +357,7 @@ class SeekNLP:
         self.nx_dec, self.ng = x.numel(), g.numel()
         ipopt = {"print_level": 0, "sb": "yes", "max_iter": settings.max_iter, "tol": settings.tol,
                  "acceptable_tol": 1e-5, "acceptable_iter": 10, "mu_strategy": "adaptive",
-                 "max_wall_time": float(settings.nlp_wall_s), "hessian_approximation": "exact"}
+                 "max_cpu_time": float(settings.nlp_cpu_s), "hessian_approximation": "exact"}
         ipopt.update(settings.ipopt)
         self.solver = ca.nlpsol("seek_nlp", "ipopt", {"x": x, "f": f, "g": g, "p": p},
                                 {"ipopt": ipopt, "print_time": False, "error_on_fail": False,
