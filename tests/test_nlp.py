@@ -195,15 +195,15 @@ def test_length_search_does_not_crawl_on_a_flat_residual(first_feasible):
 def test_a_timeout_is_a_length_not_shown_feasible(ctrl):
     """An Ipopt time-out at one candidate length is not fatal and never a profile: the length search
     moves on; here every NLP times out, so the answer is the linear design verified on the full plant
-    (every NLP recorded with its status); a design that runs out of its own wall time raises."""
-    des = EffectAwareDesigner(kt_plant(), ctrl, IMAX, 0.1, None, NLPSettings(nlp_wall_s=1e-3, tail_s=0.002))
+    (every NLP recorded with its status); a design that runs out of its own CPU time raises."""
+    des = EffectAwareDesigner(kt_plant(), ctrl, IMAX, 0.1, None, NLPSettings(nlp_cpu_s=1e-3, tail_s=0.002))
     res = des.design(10.0, 12000.0)
     assert res.profile.kind != "optimal-nlp" and res.profile.meta["design_path"].startswith("linear")
     assert len(res.solves) >= 2 and all(not s.success for s in res.solves)
     assert {s.status for s in res.solves} <= {"Maximum_WallTime_Exceeded", "Maximum_CpuTime_Exceeded"}
     assert len({s.n_seek for s in res.solves}) == len(res.solves)        # moved on: each length once
     assert res.metrics.settled and res.metrics.peak_current_a <= IMAX * (1 + 1e-9)
-    des = EffectAwareDesigner(kt_plant(), ctrl, IMAX, 0.1, None, NLPSettings(design_wall_s=0.0, tail_s=0.002))
+    des = EffectAwareDesigner(kt_plant(), ctrl, IMAX, 0.1, None, NLPSettings(design_cpu_s=0.0, tail_s=0.002))
     with pytest.raises(NLPDesignError, match="ran out of time"):
         des.design(10.0, 12000.0)
 
@@ -228,7 +228,37 @@ def test_failed_full_plant_check_is_not_returned(ctrl, monkeypatch, linear_fails
         res = des.design(10.0, 12000.0)
         assert res.profile.kind != "optimal-nlp" and res.profile.meta["design_path"].startswith("linear")
         assert res.metrics.peak_current_a <= IMAX * (1 + 1e-9) and res.metrics.settled
-        assert res.settle_samples == math.ceil(res.linear_metrics.settle_time_s * res.profile.sample_rate_hz - 1e-9)
+        # accepted by the NLP designs' rule: settled by its length, the band margin held over the rows after it
+        ns = math.ceil(res.linear_metrics.settle_time_s * res.profile.sample_rate_hz - 1e-9)
+        assert res.settle_samples >= ns - 1
+        assert des._accept(res.profile, 10.0, 12000.0, res.settle_samples)[1] == res.settle_samples
+
+
+def _held(sim, n, tail, T0=12000.0, K=10.0, band=0.1):
+    """Worst |PES| [band] of a play over the samples ``n .. n + tail``."""
+    return float(np.max(np.abs(sim.true_position_track[n:n + tail + 1] - (T0 + K)))) / band
+
+
+def test_linear_fallback_is_accepted_by_the_nlp_designs_rule(ctrl, monkeypatch):
+    """The linear design, when no NLP design is found, is accepted as an NLP design is: played on the full
+    plant, within Imax, settled by its length and holding the band margin (0.8 band) over the band rows'
+    samples after it.  K = 10 from Kt 0.88: it enters the band 58 samples in but crests near the band edge
+    after (0.96 band); it is the answer at the first length from which it holds the margin, and when no
+    length holds it (a margin it never meets) it is no answer at all."""
+    monkeypatch.setattr(nlpmod, "_search_length", lambda *a, **k: (0, None))      # the NLP finds nothing
+    des = EffectAwareDesigner(kt_plant(), ctrl, IMAX, 0.1, None, NLPSettings(tail_s=0.002))
+    res = des.design(10.0, 12000.0)
+    assert res.profile.meta["design_path"].startswith("linear") and not res.solves
+    n, fs, tail = res.settle_samples, ctrl.sample_rate_hz, des.accept_tail
+    _, sim = play_seek(des.nlp_plant, ctrl, res.profile, 12000.0, horizon_s=0.03)
+    assert _held(sim, n, tail) <= 0.8 * (1 + 1e-6) < _held(sim, n - 1, tail)
+    assert n > math.ceil(res.metrics.settle_time_s * fs - 1e-9)     # the margin, not the band, set its length
+    assert des._accept(res.profile, 10.0, 12000.0, n)[1] == n        # the NLP candidates' acceptance agrees
+    assert des._accept(res.profile, 10.0, 12000.0, n - 1)[1] is None
+    assert int(res.profile.meta["design_settle_samples"]) == n
+    des.settings.band_margin = 0.0                                   # a margin no play holds
+    with pytest.raises(NLPDesignError):
+        des.design(10.0, 12000.0)
 
 
 # ----------------------------------------------------------------------------- designs
@@ -441,7 +471,7 @@ def test_design_scraping_the_band_past_short_rows_is_not_accepted(ctrl):
 
     def recording(plant, controller, prof, start, **kw):
         m, sim = real(plant, controller, prof, start, **kw)
-        plays.append((prof.kind, prof.seek_samples, m, des._held_margin(sim, prof, 10.0, 12000.0, prof.seek_samples)))
+        plays.append((prof.kind, prof.seek_samples, m, _held(sim, prof.seek_samples, des.accept_tail)))
         return m, sim
     nlpmod.play_seek, orig = recording, nlpmod.play_seek
     try:
@@ -456,7 +486,42 @@ def test_design_scraping_the_band_past_short_rows_is_not_accepted(ctrl):
     # the answer is not that candidate: an NLP design holds the margin, else the linear design (its settle
     # measured on the full plant, no prediction of its own)
     _, sim = play_seek(p, ctrl, res.profile, 12000.0, horizon_s=0.03)
-    if res.profile.kind == "optimal-nlp":
-        assert des._held_margin(sim, res.profile, 10.0, 12000.0, res.settle_samples) <= 0.8 * (1 + 1e-6)
-    else:
+    # an NLP design or the linear design: the same rule, the margin held over the rows after its length
+    assert _held(sim, res.settle_samples, des.accept_tail) <= 0.8 * (1 + 1e-6)
+    if res.profile.kind != "optimal-nlp":
         assert res.profile.meta["design_path"].startswith("linear") and res.metrics.settled
+
+
+# ----------------------------------------------------------------------------- the corrections' basis
+def test_correction_knots_per_sample_short_seeks_arrival_at_full_resolution():
+    """Every sample of a short seek is a knot; a longer seek keeps every sample of its arrival (the last
+    ``arrival_samples``) and a knot at most every ``knot_spacing`` samples before; the count grows with
+    the length (no fixed number of hats whose spacing widens with the seek)."""
+    from seekopt.design.nlp_basis import correction_knots
+    st = NLPSettings(per_sample_samples=32, arrival_samples=24, knot_spacing=4)
+    assert np.array_equal(correction_knots(20, st), np.arange(20))
+    assert np.array_equal(correction_knots(32, st), np.arange(32))
+    counts = []
+    for n in range(33, 400):
+        k = correction_knots(n, st)
+        assert k[0] == 0 and k[-1] == n - 1 and np.all(np.diff(k) > 0)
+        assert np.array_equal(k[-24:], np.arange(n - 24, n))               # the arrival, every sample
+        assert np.max(np.diff(k)) <= 4                                      # the run, every 4 samples
+        counts.append(len(k))
+    assert np.all(np.diff(counts) >= 0) and counts[-1] >= 24 + (399 - 24) / 4
+
+
+def test_hat_basis_interpolates_on_its_knots_and_is_zero_after_the_seek():
+    """The hats are the piecewise-linear interpolation on the knots: a line through the knots' values is
+    reproduced exactly on every sample of the seek, nothing after it; spare columns are zero."""
+    from seekopt.design.nlp_basis import correction_knots, hat_basis
+    st = NLPSettings(per_sample_samples=8, arrival_samples=5, knot_spacing=3)
+    n, nmax = 30, 40
+    k = correction_knots(n, st)
+    B = hat_basis(k, nmax, len(k) + 3)
+    assert B.shape == (nmax, len(k) + 3) and not B[:, len(k):].any() and not B[n:].any()
+    line = 0.3 + 0.05 * np.arange(n)
+    assert np.allclose((B[:, :len(k)] @ (0.3 + 0.05 * k))[:n], line)
+    assert np.allclose(B[:n, :len(k)].sum(axis=1), 1.0)
+    per_sample = hat_basis(correction_knots(8, st), nmax, 8)
+    assert np.array_equal(per_sample[:8], np.eye(8))

@@ -8,8 +8,9 @@ b. Joint output-error fit of the measured position to the measured current over 
    after settling they are not -- at the benchmark noise no mode's settle-window response exceeds
    the noise at its frequency), by variable projection (:class:`identification.estimate.varpro.VarPro`):
    ``scipy.optimize.least_squares`` over each mode's frequency and damping and the delay, with the
-   linear parameters (``k0``, ``k0 bias``, ``k0 g_r``, per-segment initial position and velocity,
-   run-out harmonics) projected out by LS at every evaluation.  The rigid body and the modes are the
+   linear parameters (``k0``, ``k0 bias``, ``k0 g_r``, in the final stage the residual compliance ``k0 D``
+   of the modes the model does not hold (``residual_fs_multiple``, :class:`VarPro`), per-segment initial position
+   and velocity, run-out harmonics) projected out by LS at every evaluation.  The rigid body and the modes are the
    one discretisation of :mod:`identification.model.discrete` (ZOH, fractional delay, multirate
    sub-step hold when the log has the sub-step currents); each mode's response runs over the whole
    log, so mode states carry over from seek to seek.  The noise is coloured (flutter, run-out, and
@@ -178,7 +179,7 @@ class _Run:
     def refine(self, vp: VarPro, x, nfev: int | None = None):
         return vp.fit(x, *self.bounds(x), max_nfev=self.s.max_nfev if nfev is None else nfev)
 
-    def problem(self, data, x, white: bool = True, noise_from: VarPro | None = None):
+    def problem(self, data, x, white: bool = True, noise_from: VarPro | None = None, residual: bool = False):
         """The OE problem on ``data = (i0, i1, segments)`` with the run-out columns (once detected),
         whitened by an AR model of its residual at ``x``; returns ``(whitened, unwhitened)``.
 
@@ -187,12 +188,19 @@ class _Run:
         (:meth:`VarPro.output_error`): in closed loop the unwhitened LS coefficients are biased
         (the feedback current is correlated with the coloured noise), and an AR model of their
         residual whitens their misfit, not the noise -- the whitened residual then stays coloured
-        and the prediction-error estimate keeps a bias."""
+        and the prediction-error estimate keeps a bias.
+
+        ``residual``: the model has the residual compliance column (``residual_fs_multiple``): the
+        final stage's, not the search's -- near-collinear with the quasi-static response of broad
+        high-frequency candidates, it lets the search's refinement wander (on the 36 kHz calibration
+        drive two logs of 20 lost their 8.3 kHz mode to a broad 15.2 kHz one of gain 2).  The search
+        finds the modes with the plant model alone; the final estimate and covariance hold the term."""
         i0, i1, seg = data
         uu, yy = self.u[i0:i1], self.y[i0:i1]
         P = self.nuisance_period
         Z = None if P is None else periodic_columns(len(uu), P, self.s.periodic_harmonics, offset=i0)
-        vp = VarPro(uu, yy, self.dt, seg, nuisance=Z)
+        rh = self.s.residual_fs_multiple * self.fs if residual else 0.0
+        vp = VarPro(uu, yy, self.dt, seg, nuisance=Z, residual_hz=rh)
         if not (white and self.s.ar_order):
             return vp, vp
         b = vp.proj.bounds                           # the residual is the unwhitened problem's: projected
@@ -201,7 +209,7 @@ class _Run:
         ar = ar_whitener([fir_filter(d, r[b[i]:b[i + 1]])[len(d) - 1:] for i in range(len(b) - 1)],
                          int(self.s.ar_order))
         ar = None if ar is None else np.convolve(d, ar)
-        return VarPro(uu, yy, self.dt, seg, ar=ar, nuisance=Z), vp
+        return VarPro(uu, yy, self.dt, seg, ar=ar, nuisance=Z, residual_hz=rh), vp
 
     def prune(self, vp: VarPro, x):
         """Drop the least significant mode while any |gain|/std < t_min, near-duplicates, and
@@ -357,11 +365,11 @@ class _Run:
         significant in it dropped)."""
         s = self.s
         data = (0, None, self.segs)
-        vp, vp0 = self.problem(data, x)
+        vp, vp0 = self.problem(data, x, residual=True)
         if len(x) > 1:
             x = self.prune(vp, self.refine(vp, x, s.final_nfev))
         for _ in range(s.noise_model_passes):       # the noise model of the prediction-error estimate's own error
-            vp, vp0 = self.problem(data, x, noise_from=vp)
+            vp, vp0 = self.problem(data, x, noise_from=vp, residual=True)
             if len(x) > 1:
                 x = self.refine(vp, x, s.final_nfev)
         while True:
@@ -434,6 +442,9 @@ class _Run:
             diag["runout"] = {"period_samples": int(self.nuisance_period), "cos_track": rho[0::2].tolist(),
                               "sin_track": rho[1::2].tolist()}
         plant.bias_a, plant.std["bias_a"] = self.bias(plant, diag.get("runout"))
+        if vp.residual_hz:                          # c[2 + R] = k0 D: the residual compliance [s^2]
+            diag["residual_compliance"] = {"s2": float(c[2 + R] / c[0]), "std": _ratio_std(c, cc, 2 + R),
+                                           "mode_hz": vp.residual_hz}
         infl = np.sqrt(np.diag(cov) / np.maximum(np.diag(cov_white), _TINY))
         diag.update(ar_order=int(self.s.ar_order), std_inflation_median=float(np.median(infl)),
                     std_inflation_max=float(np.max(infl)), whitened_residual_rms=float(np.sqrt(np.mean(r ** 2))),

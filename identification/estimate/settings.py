@@ -126,7 +126,12 @@ class RobustSettings(IdentifySettings):
         an AR model of short detrended segments cannot place on the unit circle), ``cov`` (``"newey-west"`` or
         ``"cluster"``), ``nw_lags`` (Newey-West lags [samples]), ``bias_from`` (``"whole-log"``:
         the rigid body's momentum balance from seek to seek over the whole log; ``"seeks"``: the
-        per-seek output-error fit's).
+        per-seek output-error fit's), ``residual_fs_multiple`` (the output-error model's residual
+        compliance of the modes it does not hold -- a missed mode near the detection threshold, modes
+        near or above Nyquist -- is the response of an overdamped mode at this multiple of fs times
+        its ``w^2`` [-]; 0: no such term, and a missed mode's quasi-static response is taken up by the
+        highest fitted modes' gains and damping, biasing them by several std, see
+        :class:`identification.estimate.varpro.VarPro`).
     Repeatable run-out
         ``periodic`` (``"auto"``: detected; None: none; or the period [samples]),
         ``periodic_harmonics`` (harmonics fitted), ``periodic_search_samples`` (periods tried by the
@@ -197,6 +202,7 @@ class RobustSettings(IdentifySettings):
     tabu_sep_rel: float = 0.01
     existing_sep_rel: float = 0.02
     scan_idle_rounds: int = 2
+    residual_fs_multiple: float = 2.0
 
     method = "robust"
 
@@ -218,6 +224,8 @@ class RobustSettings(IdentifySettings):
             raise ValueError(f"noise_unit_poles must be a non-negative integer, got {self.noise_unit_poles!r}")
         if not isinstance(self.ar_order, numbers.Integral) or self.ar_order < 0:
             raise ValueError(f"ar_order must be a non-negative integer, got {self.ar_order!r}")
+        if not (self.residual_fs_multiple == 0 or self.residual_fs_multiple > 0.5):
+            raise ValueError(f"residual_fs_multiple must be 0 or above 0.5 (above Nyquist), got {self.residual_fs_multiple!r}")
         for name in ("scan_step_rel", "scan_step_zeta"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)!r}")

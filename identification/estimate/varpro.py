@@ -36,8 +36,19 @@ class VarPro:
     projected orthogonally to the per-segment ``[1, t]`` (an affine signal stays affine under an
     FIR filter, so this removes ``p0_s, v0_s`` exactly).
 
+    With ``residual_hz > 0`` the model has one more column, the *residual compliance* of the modes
+    the model does not hold: every mode far above the fitted ones (or above Nyquist) responds to the
+    seek current quasi-statically, ``g / w^2`` times the delayed current, and without a term of its
+    own that compliance is taken up by the gains and damping of the highest fitted modes (on the
+    50.4 kHz test drive a missed 19.5 kHz mode of gain-to-std 5 moved the 14.8 kHz mode's gain by
+    4.7 of its std on average, and the 7.8 / 10.6 kHz modes' by about 2).  The column is the response of
+    an overdamped unit mode (damping :attr:`RESIDUAL_ZETA`) at ``residual_hz`` scaled by its
+    ``w^2`` -- the delayed, held current smoothed over a fraction of a sample, through the one
+    discretisation like every mode (modal analysis's "upper residual").
+
     Nonlinear parameters ``x = [ln f_1..ln f_R, ln zeta_1..ln zeta_R, delay / dt]``; linear
-    coefficients ``c = [k0, k0 bias, k0 g_1..k0 g_R]``; the nuisance columns are projected out once
+    coefficients ``c = [k0, k0 bias, k0 g_1..k0 g_R(, k0 D)]`` (``D`` the residual compliance
+    [s^2]: ``k0 D u`` track for a held current ``u``); the nuisance columns are projected out once
     (Frisch-Waugh-Lovell: the same estimates and covariance as fitting ``rho`` jointly) and ``rho``
     is available from :meth:`nuisance_coef`.
     """
@@ -46,9 +57,13 @@ class VarPro:
     STEP_LN_FREQ, STEP_LN_ZETA, STEP_DELAY_SAMPLES = 1e-6, 1e-4, 1e-3
     #: solver tolerances of :meth:`fit` (relative change of x and of the cost) [-]
     XTOL = FTOL = 1e-9
+    #: damping ratio of the residual-compliance column's overdamped mode [-]
+    RESIDUAL_ZETA = 0.7
 
-    def __init__(self, current_a, position_track, dt: float, segments, ar=None, nuisance=None):
+    def __init__(self, current_a, position_track, dt: float, segments, ar=None, nuisance=None,
+                 residual_hz: float = 0.0):
         self.u = np.asarray(current_a, dtype=float)
+        self.residual_hz = float(residual_hz)
         self.dt = float(dt)
         self.n = len(self.u)
         self.ar = None if ar is None else np.asarray(ar, dtype=float)
@@ -110,11 +125,20 @@ class VarPro:
         M = mode_regressors(self.uw, freqs, zetas, self.dt, delay_samples * self.dt)
         return self._project(self.proj.take(M))
 
+    def residual_columns(self, u, delay_samples) -> np.ndarray:
+        """The residual-compliance column of current ``u`` (``(n, 0)`` without one): the unit
+        overdamped mode at ``residual_hz`` times ``w^2`` [track per unit ``k0 D`` -- i.e. A s^2]."""
+        if not self.residual_hz:
+            return np.zeros((len(u), 0))
+        w2 = (2 * np.pi * self.residual_hz) ** 2
+        return mode_regressors(u, [self.residual_hz], [self.RESIDUAL_ZETA], self.dt, delay_samples * self.dt) * w2
+
     def columns(self, freqs, zetas, delay_samples):
-        """Transformed ``[rigid, bias, modes...]`` columns."""
+        """Transformed ``[rigid, bias, modes..., residual compliance]`` columns."""
         R = zoh_rigid_response(self.u, self.dt, delay_samples * self.dt, self.starts)
         return np.column_stack([self.transform(np.column_stack([R, self.bias])),
-                                self.mode_columns(freqs, zetas, delay_samples)])
+                                self.mode_columns(freqs, zetas, delay_samples),
+                                self._project(self.proj.take(self.residual_columns(self.uw, delay_samples)))])
 
     @staticmethod
     def unpack(x, R=None):
@@ -172,7 +196,7 @@ class VarPro:
         f, z, d = self.unpack(x)
         R = zoh_rigid_response(self.u, self.dt, d * self.dt, self.starts)
         M = mode_regressors(self.u, f, z, self.dt, d * self.dt)
-        return self.position - np.column_stack([R, self.bias, M]) @ c
+        return self.position - np.column_stack([R, self.bias, M, self.residual_columns(self.u, d)]) @ c
 
     def fit(self, x0, lb, ub, max_nfev: int = 40):
         """Levenberg-Marquardt-like trust-region refinement of ``x`` within bounds."""

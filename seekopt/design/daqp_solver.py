@@ -13,7 +13,13 @@ import numpy as np
 from seekopt.design.certificates import proves_infeasible
 from seekopt.design.qp_status import DAQP_PKG, QPSolution, QPStatus, classify_status
 
-__all__ = ["DaqpQP", "kkt_holds"]
+__all__ = ["DaqpQP", "kkt_holds", "PROX_OPTIONS"]
+
+#: daqp with proximal-point iterations (``eps_prox``) for an ill-conditioned Hessian: on the whole-row QP
+#: of nominal K = 3888 on the truth plant (cond(H) ~ 7e10) where both daqps cycle (exit -2) it answers in
+#: ~1 s CPU within the constraint re-check (violation 3e-16).  :class:`DaqpQP` retries a cycling solve
+#: with it; ``daqp_prox`` is the same as a fallback of its own (a chain whose primary is not the package).
+PROX_OPTIONS = {"eps_prox": 1e-6, "iter_limit": 20000, "primal_tol": 1e-9}
 
 
 class DaqpQP:
@@ -26,7 +32,8 @@ class DaqpQP:
     Warm start: ``lam_a0``/``lam_x0`` (multipliers in casadi's sign convention, e.g. a previous
     answer's mapped to these rows) give daqp its starting active set (``dual_start``: the nonzero
     entries start active).  A warm start that ends in anything but an answer or an infeasibility
-    (a linearly dependent starting set: -6; cycling) is retried cold once.  ``x0`` is not used.
+    (a linearly dependent starting set: -6; cycling) is retried cold once; a cold solve that cycles or
+    hits the iteration limit once more with proximal iterations (:data:`PROX_OPTIONS`).  ``x0`` is not used.
 
     On ``infeasible`` (daqp exit flag -1) the multipliers daqp returns (its Farkas direction, of
     opposite sign to casadi's convention; returned in casadi's) are checked on the data
@@ -39,18 +46,22 @@ class DaqpQP:
     options : dict, optional
         daqp settings (``iter_limit``, ``primal_tol``, ``dual_tol``, ...), merged over
         ``iter_limit=5000, primal_tol=1e-9`` (the settings :class:`ConicQP` gives casadi's daqp).
+    name : str
+        ``daqp_pkg``, or ``daqp_prox`` for the proximal fallback (:data:`seekopt.design.solvers.PROX_OPTIONS`).
     """
 
     name = DAQP_PKG
     warm_duals = True
 
-    def __init__(self, n: int, m: int, options: dict | None = None):
+    def __init__(self, n: int, m: int, options: dict | None = None, name: str = DAQP_PKG):
         import daqp
         self._daqp = daqp
-        self.n, self.m, self.plugin = int(n), int(m), DAQP_PKG
+        self.n, self.m, self.plugin = int(n), int(m), name
+        self.name = name
         self.settings = {"iter_limit": 5000, "primal_tol": 1e-9}
         self.settings.update(options or {})
         self.warm_retries = 0           # warm starts that failed and were solved cold (statistics)
+        self.prox_retries = 0           # cycling / iteration-limit solves retried with proximal iterations
 
     def _call(self, H, f, A, bu, bl, sense, dual0):
         kw = dict(self.settings)
@@ -88,12 +99,23 @@ class DaqpQP:
             # a warm answer stands only when it satisfies the optimality conditions, else solved cold
             self.warm_retries += 1
             x, flag, lam = self._call(H, g, A, bu, bl, sense, None)
+        if flag in (-2, -4) and "eps_prox" not in self.settings:
+            # cycling or the iteration limit: an ill-conditioned Hessian (cond ~ 1e10 at K >= 3888); the
+            # proximal iterations answer it in ~1 s where casadi's daqp cycles too (PROX_OPTIONS)
+            self.prox_retries += 1
+            kw = dict(self.settings, **PROX_OPTIONS)
+            try:
+                xp, _, fp, ip = self._daqp.solve(H, g, A, bu, bl, sense, **kw)
+                if int(fp) in (1, 2, -1):
+                    x, flag, lam = np.asarray(xp, dtype=float), int(fp), np.asarray(ip["lam"], dtype=float)
+            except (ValueError, RuntimeError):
+                pass
         dt, dc = time.perf_counter() - t0, time.process_time() - c0
         raw = str(flag)
         if x is None:
             x, lam, outcome = np.full(n, np.nan), np.full(n + m, np.nan), QPStatus.NUMERICAL
         else:
-            outcome = classify_status(DAQP_PKG, raw, flag in (1, 2))
+            outcome = classify_status(self.name, raw, flag in (1, 2))
         ok = outcome is QPStatus.OPTIMAL and bool(np.all(np.isfinite(x)))
         if outcome is QPStatus.OPTIMAL and not ok:
             outcome = QPStatus.NUMERICAL
@@ -103,7 +125,7 @@ class DaqpQP:
             proven = bool(proves_infeasible(A, lba, uba, lbx, ubx, lam[n:]))
             if not proven:          # daqp 0.11 returns no usable multipliers with most "infeasible"s
                 lam = np.zeros(n + m)
-        return QPSolution(x, lam[n:].copy(), lam[:n].copy(), ok, raw, dt, dc, outcome, DAQP_PKG, proven=proven)
+        return QPSolution(x, lam[n:].copy(), lam[:n].copy(), ok, raw, dt, dc, outcome, self.name, proven=proven)
 
 
 def kkt_holds(H, g, A, lba, uba, lbx, ubx, x, lam_a, lam_x, tol: float = 1e-6) -> bool:

@@ -28,7 +28,9 @@ former fixed 0.45-0.65 fs guard is the ``nyquist`` band here).  Bands come from
 """
 from __future__ import annotations
 
+import hashlib
 import math
+from collections import OrderedDict
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -37,7 +39,7 @@ from seekopt.design.qp import mode_residual_phasors, mode_residual_rows, mode_re
 
 __all__ = ["GuardBand", "controller_notches", "nyquist_band", "plant_blind_bands", "plant_gain_curve", "curve_gain",
            "band_gains", "merge_bands",
-           "problem_bands", "guard_grid", "grid_spacing", "loop_peaks", "guard_rows", "design_guard_rows", "GRID_PER_LOBE", "GuardReport", "guard_report"]
+           "problem_bands", "guard_grid", "grid_spacing", "loop_peaks", "guard_rows", "design_guard_rows", "build_guard_rows", "GRID_PER_LOBE", "GuardReport", "guard_report"]
 
 
 @dataclass
@@ -321,7 +323,45 @@ def guard_rows(bands: list, k0: float, fs: float, L: int, nsub: int, spacing_hz:
     return mode_residual_rows(mode_residual_phasors(k0, fs, L, nsub, f, g), npoly), f
 
 
+#: Guard rows built, by what they are made of (:func:`design_guard_rows`): the designers of one plant (its
+#: nominal and robust designers, a sweep's cells) share a size class's rows (``loop_peaks`` and
+#: ``mode_residual_rows``: 30-90 ms per class).  Kept for the last ``GUARD_CACHE_SIZE`` classes.
+GUARD_CACHE_SIZE = 16
+_GUARD_CACHE: "OrderedDict[tuple, tuple]" = OrderedDict()
+
+
+def _fingerprint(*arrays) -> str:
+    """Content hash of arrays (shape, dtype and bytes)."""
+    h = hashlib.sha1()
+    for a in arrays:
+        a = np.ascontiguousarray(a)
+        h.update(repr((a.shape, a.dtype.str)).encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
 def design_guard_rows(bands: list, k0: float, fs: float, nmax: int, horizon: int, nominal_maps, curve=None):
+    """:func:`build_guard_rows`, cached by content (the bands, ``k0``, ``fs``, ``nmax``, ``horizon``, the
+    maps' current responses and the curve: equal inputs, the same rows); the arrays returned are
+    read-only and shared."""
+    if not bands:
+        return None
+    key = (repr(list(bands)), float(k0), float(fs), int(nmax), int(horizon), int(nominal_maps.L),
+           _fingerprint(nominal_maps.i_u, nominal_maps.i_r),
+           None if curve is None else _fingerprint(*curve))
+    if key in _GUARD_CACHE:
+        _GUARD_CACHE.move_to_end(key)
+        return _GUARD_CACHE[key]
+    rows = build_guard_rows(bands, k0, fs, nmax, horizon, nominal_maps, curve)
+    for a in rows:
+        a.setflags(write=False)
+    _GUARD_CACHE[key] = rows
+    while len(_GUARD_CACHE) > GUARD_CACHE_SIZE:
+        _GUARD_CACHE.popitem(last=False)
+    return rows
+
+
+def build_guard_rows(bands: list, k0: float, fs: float, nmax: int, horizon: int, nominal_maps, curve=None):
     """The guard rows of a design for seeks (or velocity steps) of at most ``nmax`` samples: ``(G, freqs)``
     of :func:`guard_rows` on the sub-step currents of samples ``0..horizon-1``, on the grid
     :func:`grid_spacing` ``(fs, nmax)`` plus the narrow peaks of the nominal loop ``nominal_maps``

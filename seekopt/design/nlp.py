@@ -40,6 +40,7 @@ from seekopt.design.designer import DesignResult, SeekDesigner
 from seekopt.design.feasibility import (compensate, hold_check, hold_current, nonlinear_effects, play_seek,
                                         resolve_start)
 from seekopt.design.metrics import SeekMetrics
+from seekopt.design.nlp_search import _search_length, _stretch, _verified_samples
 from seekopt.design.nlp_problem import (BUILD_COUNT, NLPSettings, NLPSolve, RobustSpread, SeekNLP,
                                         close_sample, closed_loop_sample)
 from seekopt.design.problem import SeekProblem
@@ -188,14 +189,13 @@ class EffectAwareDesigner:
         hc = hold_check(self.plant, self.controller, T0 + K, self.settle)
         if not hc.holds:
             raise DesignUnholdable(hc.message())
-        t_begin = time.perf_counter()
+        t_begin = time.process_time()
         st = self.settings
         say(f"linear design (QP) for {K:g} tracks")
         lin = self.linear.design(K) if linear is None else linear
         # checks on the plant the NLP designs for: output effects (run-out) are the spindle's phase, not
         # the seek's, and no feedforward removes them (the hold check above includes them)
-        lin_m, _ = play_seek(self.nlp_plant, self.controller, lin.profile, T0, settle=self.settle,
-                             horizon_s=st.check_tail_s)
+        lin_m, n_lin, _ = self._accept(lin.profile, K, T0)
         warm, comp, (g_w, o_w) = self._warm_start(K, T0, lin, say)
         dt = 1.0 / (self.fs * self.L)
         uh = hold_current(self.nlp_plant, T0, dt)
@@ -210,9 +210,9 @@ class EffectAwareDesigner:
         def feasible(n):
             if n in cache:
                 return cache[n][0]
-            if time.perf_counter() - t_begin > st.design_wall_s:
+            if time.process_time() - t_begin > st.design_cpu_s:
                 raise NLPDesignError(f"design of {K:g} tracks from track {T0:g} ran out of time "
-                                     f"({st.design_wall_s:g} s, {len(solves)} NLPs)")
+                                     f"({st.design_cpu_s:g} s CPU, {len(solves)} NLPs)")
             if len(solves) >= st.max_nlps and any(ok for ok, *_ in cache.values()):
                 raise _Budget()
             nlp, spread = self._nlp(n)
@@ -238,9 +238,9 @@ class EffectAwareDesigner:
             cache[n] = (good, v[:n], q[:n], res)
             return good
 
-        # the linear design, played on the full plant, is a verified design too: the NLP searches only
-        # for shorter seeks, and when it finds none the linear design is the answer (never a worse one)
-        n_lin = _verified_samples(lin_m, self.fs, self.imax)
+        # the linear design, accepted on the full plant by the same rule (_accept: the length from which it
+        # holds the rows' margin), is a verified design too: the NLP searches only for shorter seeks, and when
+        # it finds none the linear design is the answer (never a worse one)
         n_cap = st.max_samples if n_lin is None else min(st.max_samples, n_lin - 1)
         if n_cap < 1:
             return self._linear_result(lin, lin_m, K, T0, n_lin, solves, say)
@@ -254,7 +254,7 @@ class EffectAwareDesigner:
             late = sum(s.status in _TIMEOUTS for s in solves)
             raise NLPDesignError(f"no effect-aware design of {K:g} tracks from track {T0:g} within "
                                  f"{st.max_samples} samples ({len(solves)} NLPs"
-                                 + (f", {late} timed out at {st.nlp_wall_s:g} s" if late else "")
+                                 + (f", {late} timed out at {st.nlp_cpu_s:g} s CPU" if late else "")
                                  + f"; last: {solves[-1].status if solves else 'no NLP'})")
         # verify on the full plant; step up on failure
         tried = 0
@@ -270,11 +270,8 @@ class EffectAwareDesigner:
             tried += 1
             _, v, q, _ = cache[n]
             prof = self._profile(v, q, K, T0, n, lin, solves)
-            m, sim = play_seek(self.nlp_plant, self.controller, prof, T0, settle=self.settle,
-                               horizon_s=max(st.check_tail_s, (self.accept_tail + 2) / self.fs))
-            held = self._held_margin(sim, prof, K, T0, n)
-            if (m.peak_current_a <= self.imax * (1 + 1e-9) and m.settle_time_s * self.fs <= n + 1 + 1e-9
-                    and held <= st.band_margin * (1 + 1e-6)):
+            m, n_ok, held = self._accept(prof, K, T0, n)
+            if n_ok == n:
                 rec = next(s for s in reversed(solves) if s.n_seek == n)
                 prof.meta.update(guard_excess_band=round(rec.guard_excess, 4),
                                  warm_start_imax_a=round(warm.profile.imax_a, 5))
@@ -290,22 +287,41 @@ class EffectAwareDesigner:
         raise NLPDesignError(f"no effect-aware design of {K:g} tracks from track {T0:g} passed the full-plant "
                              f"check ({tried} candidates from {hi} samples)")
 
-    def _held_margin(self, sim, prof: Profile, K: float, T0: float, n: int) -> float:
-        """Worst ``|PES|`` [band] of a full-plant play over the samples the NLP's band rows cover
-        (``n .. n + accept_tail``, :meth:`SeekProblem.band_tail_samples`): the design is accepted only when
-        it holds there the margin its rows promised (``band_margin``), not merely the band."""
-        pes = np.asarray(sim.true_position_track, float) - (T0 + K)
-        return float(np.max(np.abs(pes[n:n + self.accept_tail + 1]))) / self.settle
+    def _accept(self, prof: Profile, K: float, T0: float, n: int | None = None):
+        """The one acceptance rule of a design (an NLP candidate or the linear fallback): played on the full
+        plant (output effects aside) from ``T0`` by the one simulator, it is accepted at the length ``n``
+        [samples] when its total current stays within Imax, it settles by ``n + 1`` samples and its ``|PES|``
+        stays within the margin its band rows promise (``band_margin`` band) over the samples those rows
+        cover, ``n .. n + accept_tail`` (:meth:`SeekProblem.band_tail_samples`) -- not merely the band.
+
+        ``n`` given: ``(metrics, n or None, worst |PES| [band] over that window)``; ``n`` None: the shortest
+        length at which the design is accepted (None if none within the play), for the linear fallback."""
+        st, tail = self.settings, self.accept_tail
+        horizon = max(st.check_tail_s, (tail + 2) / self.fs) if n is not None else st.check_tail_s + (tail + 2) / self.fs
+        m, sim = play_seek(self.nlp_plant, self.controller, prof, T0, settle=self.settle, horizon_s=horizon)
+        pes = np.abs(np.asarray(sim.true_position_track, float) - (T0 + K)) / self.settle
+        ns = _verified_samples(m, self.fs, self.imax)
+        if ns is None:
+            return m, None, math.inf
+        last = len(pes) - tail - 1                 # the last length whose whole window was played
+        lengths = [int(n)] if n is not None else range(max(ns - 1, 1), last + 1)
+        held = math.inf
+        for k in lengths:
+            held = float(np.max(pes[k:k + tail + 1])) if k <= last else math.inf
+            if k >= ns - 1 and held <= st.band_margin * (1 + 1e-6):
+                return m, k, held
+        return m, None, held
 
     def _linear_result(self, lin: DesignResult, lin_m: SeekMetrics, K, T0, n_lin: int, solves, say):
-        """The linear (QP) design as the answer: it settled on the full plant from ``T0`` within Imax in
-        ``n_lin`` samples and no effect-aware design settled sooner."""
-        say(f"  no effect-aware design settles before the linear design ({n_lin} samples on the full plant): "
-            "the linear design is the answer")
+        """The linear (QP) design as the answer: accepted on the full plant from ``T0`` by the rule every NLP
+        design meets (:meth:`_accept`: within Imax, settled by ``n_lin + 1`` samples, the band margin held over
+        the band rows' samples after ``n_lin``) and no effect-aware design was accepted sooner."""
+        say(f"  no effect-aware design accepted before the linear design ({n_lin} samples on the full plant, "
+            "band margin held): the linear design is the answer")
         prof = copy.deepcopy(lin.profile)
         prof.meta.update(start_track=T0, direction="outward" if K > 0 else "inward", design_status="verified",
                          design_path="linear (no effect-aware design settled sooner)",
-                         effects_in_design="none", ipopt_iterations=sum(s.iterations for s in solves),
+                         effects_in_design="none", design_settle_samples=n_lin, ipopt_iterations=sum(s.iterations for s in solves),
                          ipopt_time_s=round(sum(s.wall_s for s in solves), 3), n_nlp=len(solves))
         return NLPDesignResult(prof, lin_m, T0, n_lin, solves, lin, lin_m,
                                sum(p.build_time_s for p in self._nlps.values()))
@@ -348,66 +364,3 @@ class EffectAwareDesigner:
         if out:
             meta["effects_not_in_design"] = ";".join(out)
         return Profile(np.r_[u, 0.0], np.r_[r, K], self.fs, K, self.imax, self.settle, "optimal-nlp", n, meta)
-
-
-def _verified_samples(m: SeekMetrics, fs: float, imax: float) -> int | None:
-    """Seek-settle samples of a design played on the full plant, None if it did not settle within Imax."""
-    if not (m.settled and math.isfinite(m.settle_time_s) and m.peak_current_a <= imax * (1 + 1e-9)):
-        return None
-    return max(int(math.ceil(m.settle_time_s * fs - 1e-9)), 1)
-
-
-def _search_length(feasible, residual, n0: int, beta: float, n_max: int):
-    """Shortest feasible seek length: bracket from ``n0`` and close it with secant steps on the
-    residual (roughly linear in the length near ``beta``), bisection when the secant does not help.
-    Returns ``(lo, hi)``: ``lo`` infeasible (or 0), ``hi`` the shortest feasible (None if none up to
-    ``n_max``)."""
-    lo, hi, n, step = 0, None, max(int(n0), 1), max(2, int(n0) // 12)
-    seen, slow, width = [], False, None
-    while True:
-        ok = feasible(n)
-        seen.append(n)
-        if ok:
-            hi = n if hi is None else min(hi, n)
-        else:
-            lo = max(lo, n)
-        if hi is not None and hi - lo <= 1:
-            return lo, hi
-        fin = [(m, residual(m)) for m in seen if math.isfinite(residual(m))]
-        guess = None
-        if len(fin) >= 2:       # secant on the two points nearest the crossing
-            a, b = sorted(fin, key=lambda mr: abs(mr[1] - beta))[:2]
-            # only a residual that falls with the length is extrapolated: a flat or rising one (e.g. a
-            # friction-excited ring the feedforward cannot remove at these lengths) would step by one sample
-            if a[0] != b[0] and (b[1] - a[1]) / (b[0] - a[0]) < 0:
-                guess = math.ceil(a[0] + (beta - a[1]) * (b[0] - a[0]) / (b[1] - a[1]))
-        if hi is None:          # nothing feasible yet: go up
-            nxt = n + step if guess is None else min(max(guess, n + 1), n + 4 * step)
-            step *= 2
-            if nxt > n_max:
-                if n >= n_max:
-                    return lo, None
-                nxt = n_max
-        elif lo == 0 and hi == min(seen):   # everything feasible so far: go down
-            nxt = hi - step if guess is None else max(min(guess, hi - 1), hi - 4 * step)
-            step *= 2
-            if nxt < 1:
-                nxt = 1
-        else:                   # bracketed: secant clipped inside, bisection when it does not help
-            nxt = (lo + hi) // 2 if guess is None or slow else min(max(guess, lo + 1), hi - 1)
-            if nxt in seen:
-                nxt = (lo + hi) // 2
-        # a step that did not halve the bracket (a residual that jumps at the feasible length) -> bisect next
-        slow = hi is not None and width is not None and 2 * (hi - lo) > width
-        width = None if hi is None else hi - lo
-        if nxt in seen or nxt <= lo or (hi is not None and nxt >= hi):
-            nxt = (lo + hi) // 2 if hi is not None else n + 1
-        n = nxt
-
-
-def _stretch(a: np.ndarray, m: int, n: int) -> np.ndarray:
-    """Resample a length-``m`` sequence to length ``n`` (time-stretched warm start)."""
-    a = np.asarray(a, float)[:m]
-    if m == n:
-        return a.copy()
-    return np.interp((np.arange(n) + 0.5) * m / n - 0.5, np.arange(m), a)

@@ -52,6 +52,7 @@ from identification.model.ops import SmoothingSettings, casadi_ops
 from identification.model.plant import ModalPlant
 
 import seekopt.design.qp as _qp
+from seekopt.design.nlp_basis import correction_knots, hat_basis
 
 __all__ = ["NLPSettings", "NLPSolve", "nlp_smoothing", "closed_loop_sample", "close_sample", "RobustSpread", "SeekNLP",
            "BUILD_COUNT"]
@@ -73,17 +74,22 @@ class NLPSettings:
     (smoothness of ``u_ff`` and ``r``, tail energy, worst residual); ``w_slack``: weight of the elastic
     slacks on the current and guard rows (exact penalty: the NLP is feasible at every length, a length
     is feasible when the current slack ends below ``slack_tol``; the guard's excess is recorded -- the
-    NLP's smooth feedforward correction cannot always shape the spectrum as the QP's free samples do); ``nlp_wall_s``: Ipopt wall-time
-    limit per solve; ``design_wall_s``: for a whole design; ``check_steps``: how many candidates
+    NLP's smooth feedforward correction cannot always shape the spectrum as the QP's free samples do); ``nlp_cpu_s``: Ipopt CPU-time
+    limit per solve (``max_cpu_time``: CPU, not wall, so that a design does not depend on the machine's load);
+    ``design_cpu_s``: the process CPU time for a whole design; ``check_steps``: how many candidates
     the full-plant check tries (the seek lengthened on failure); ``max_nlps``: NLPs of the length search
     once a feasible length is known; ``kappa_band``, ``kappa_current``:
     sharpness of the smooth maximum over the robust set (log-sum-exp, over-estimates the maximum by
-    at most ``log(n) / kappa``: 0.02 band and 0.005 Imax for 22 plants); ``reference_knots``, ``feedforward_knots``: hat functions of the corrections (per sample for seeks
-    up to ``per_sample_samples``, that many hats beyond; 12 reference knots left a K = 200 seek on Kt 0.88
-    at 2.4x the effect-free settle, the reference being the lever that reshapes the loop's tail, while 64
-    knots on a 71-sample seek with friction took 4.9 s per Ipopt iteration and did not converge in 300 s
-    -- every knot is a dense column of the guard, band and current rows -- against 0.55 s and 58 iterations
-    with 24); ``expand``: evaluate the NLP as SX (slower build, ~10x faster
+    at most ``log(n) / kappa``: 0.02 band and 0.005 Imax for 22 plants); ``per_sample_samples``, ``arrival_samples``, ``knot_spacing``: the corrections' knots
+    (:func:`seekopt.design.nlp_basis.correction_knots`: every sample of seeks up to 32 samples; beyond, every
+    sample of the last 32 -- the arrival, which sets the residual -- and one knot per 4 samples of the run
+    before; a shorter seek's unused columns are fixed at 0).  Measured on the Kt study drive (K = 200,
+    loop-fitted plant, nominal): from 50 %, per sample up to 48 samples cost 2-6 s per Ipopt iteration at
+    94-96 columns (309 s for the design), 32/24/4 0.5-0.65 s at 60-62 columns (74 s), both 48 samples; from
+    20 %, an arrival of 24 samples ended at 64 samples (2.424 ms on the drive), 32 at 50 (1.970 ms, 104 s);
+    the former rule (per sample to 48, then 24 uniform hats) gave 11.33 / 6.63 / 2.08 ms from 20 / 50 / 80 %
+    with 344 / 356 / 728 s of Ipopt (:mod:`seekopt.design.nlp_basis`); 64 hats on a 71-sample seek with
+    friction took 4.9 s per iteration (24: 0.55 s); ``expand``: evaluate the NLP as SX (slower build, ~10x faster
     derivatives); ``smoothing``: :class:`~identification.model.ops.SmoothingSettings` of the kinks in
     the NLP (friction sign over at least 20 track/s, saturation corners 2 mA, bias-table corners 50 tracks;
     the full-plant check is exact); ``friction_step``: the friction sign is smoothed at least over the
@@ -101,15 +107,15 @@ class NLPSettings:
     w_t: float = 10.0
     max_iter: int = 300
     tol: float = 1e-7
-    nlp_wall_s: float = 300.0
-    design_wall_s: float = 1800.0
+    nlp_cpu_s: float = 300.0
+    design_cpu_s: float = 1800.0
     check_tail_s: float = 0.015
     check_steps: int = 6
     max_nlps: int = 6
     max_samples: int = 512
-    per_sample_samples: int = 48
-    reference_knots: int = 24
-    feedforward_knots: int = 24
+    per_sample_samples: int = 32
+    arrival_samples: int = 32
+    knot_spacing: int = 4
     friction_step: float = 0.5
     kappa_band: float = 150.0
     kappa_current: float = 600.0
@@ -249,8 +255,8 @@ class SeekNLP:
 
     Condensed like the linear QP (:class:`seekopt.design.qp.SeekQP`): the decision vector is
     ``[v (nmax), c (nb), t]``: the feedforward [Imax], the reference offset ``q = (r - K) / |K| =
-    q_base + B c`` (the warm start's reference plus a smooth correction on ``nb = reference_knots``
-    piecewise-linear hats over the seek) and the worst residual [band];
+    q_base + B c`` (the warm start's reference plus a correction on the piecewise-linear hats of
+    :func:`~seekopt.design.nlp_basis.correction_knots`, as the feedforward's) and the worst residual [band];
     the PES and sub-step currents over ``H = nmax + tail`` samples are those of the nominal
     full-plant loop rolled out from the rest state (``mapaccum`` of the servo-sample function; the
     closed loop is stable, so single shooting is well conditioned).  Parameters
@@ -286,9 +292,9 @@ class SeekNLP:
         self._measure = ca.Function("measure_x", [xr, ur[2]], [self.dp.measure(xr[:nx], ur[2], ops)])
         Kp, aK, T0, imax, uh = (ca.MX.sym(n) for n in ("K", "absK", "T0", "imax", "uhold"))
         x0, w = ca.MX.sym("x0", nz), ca.MX.sym("w", H + 1)
-        per_sample = N <= int(settings.per_sample_samples)
-        nb = self.nb = N if per_sample else min(N, int(settings.reference_knots))
-        nv = self.nv = N if per_sample else min(N, int(settings.feedforward_knots))
+        # correction columns: the most any seek of this class uses (correction_knots); a shorter seek's unused
+        # columns are fixed at 0 (Ipopt takes fixed variables out of its KKT system)
+        nb = nv = self.nb = self.nv = max(len(correction_knots(n, settings)) for n in range(1, N + 1))
         A, CV, C, tt = ca.MX.sym("a"), ca.MX.sym("cv", nv), ca.MX.sym("c", nb), ca.MX.sym("t")
         sc, sg = ca.MX.sym("s_cur"), ca.MX.sym("s_guard")   # elastic slacks: the NLP is always feasible
         vb, Bv = ca.MX.sym("v_base", N), ca.MX.sym("Bv", N, nv)
@@ -351,7 +357,7 @@ class SeekNLP:
         self.nx_dec, self.ng = x.numel(), g.numel()
         ipopt = {"print_level": 0, "sb": "yes", "max_iter": settings.max_iter, "tol": settings.tol,
                  "acceptable_tol": 1e-5, "acceptable_iter": 10, "mu_strategy": "adaptive",
-                 "max_wall_time": float(settings.nlp_wall_s), "hessian_approximation": "exact"}
+                 "max_cpu_time": float(settings.nlp_cpu_s), "hessian_approximation": "exact"}
         ipopt.update(settings.ipopt)
         self.solver = ca.nlpsol("seek_nlp", "ipopt", {"x": x, "f": f, "g": g, "p": p},
                                 {"ipopt": ipopt, "print_time": False, "error_on_fail": False,
@@ -379,20 +385,23 @@ class SeekNLP:
         N, H, st = self.N, self.H, self.settings
         if not 0 < nseek <= N:
             raise ValueError(f"seek length {nseek} outside 1..{N}")
-        live = (np.arange(N) < nseek).astype(float)
-        v0, q0 = live * np.clip(v0[:N], -1, 1), live * np.clip(q0[:N], -2, 2)
+        on = (np.arange(N) < nseek).astype(float)
+        v0, q0 = on * np.clip(v0[:N], -1, 1), on * np.clip(q0[:N], -2, 2)
         ne = H + 1
         w = np.zeros(ne); w[nseek:] = st.w_e / (ne - nseek)
         p = np.r_[K, abs(K), T0, imax, uh, x0, w]
         _, e0, _ = self.rollout(x0, v0, q0, K, T0, imax, uh)
-        B, Bv = _hat_basis(nseek, N, self.nb), _hat_basis(nseek, N, self.nv)
+        knots = correction_knots(nseek, st)
+        B = Bv = hat_basis(knots, N, self.nb)
+        live = len(knots)
         gi, oi = (np.ones(N), np.zeros(N)) if input_map is None else \
-            (np.r_[input_map[0], np.ones(N)][:N], np.r_[input_map[1], np.zeros(N)][:N] * live)
+            (np.r_[input_map[0], np.ones(N)][:N], np.r_[input_map[1], np.zeros(N)][:N] * on)
         p = np.r_[p, v0, Bv.T.ravel(), q0, B.T.ravel(), gi, oi]
         nd = 1 + self.nv + self.nb
         xw = np.r_[np.zeros(nd), float(np.max(np.abs(e0[nseek:]))), 0.1, 0.1]
-        lbx = np.r_[-0.5, np.full(nd - 1, -np.inf), 0.0, 0.0, 0.0]
-        ubx = np.r_[0.5, np.full(nd - 1, np.inf), np.inf, np.inf, np.inf]
+        free = np.r_[np.arange(self.nv) < live, np.arange(self.nb) < live]
+        lbx = np.r_[-0.5, np.where(free, -np.inf, 0.0), 0.0, 0.0, 0.0]
+        ubx = np.r_[0.5, np.where(free, np.inf, 0.0), np.inf, np.inf, np.inf]
         lbg, ubg = np.full(self.ng, -np.inf), np.full(self.ng, np.inf)
         for name, (off, n, smp) in self.blocks.items():
             sl = slice(off, off + n)
@@ -401,7 +410,7 @@ class SeekNLP:
             elif name == "pes_lo":                      # e + t >= 0 after the seek
                 lbg[sl] = np.where(smp >= nseek, 0.0, -np.inf)
             elif name == "ff":
-                lbg[sl], ubg[sl] = -live, live
+                lbg[sl], ubg[sl] = -on, on
             elif name in ("cur_hi", "rob_ihi", "rob_ilo"):
                 ubg[sl] = gamma
             elif name == "cur_lo":
@@ -425,15 +434,3 @@ class SeekNLP:
                        float(xo[nd]) if ok else math.inf, slack, guard_excess)
         v = (1 + xo[0]) * v0 + Bv @ xo[1:1 + self.nv]
         return rec, v, q0 + B @ xo[1 + self.nv:nd]
-
-
-def _hat_basis(n: int, nmax: int, nb: int) -> np.ndarray:
-    """``(nmax, nb)`` piecewise-linear hat functions on ``nb`` knots spread over samples ``0..n-1``
-    (zero from ``n`` on): the smooth correction of the reference."""
-    k = np.arange(nmax, dtype=float)
-    knots = np.linspace(0.0, n - 1.0, nb) if nb > 1 else np.array([0.0])
-    h = (knots[1] - knots[0]) if nb > 1 else 1.0
-    B = np.maximum(0.0, 1.0 - np.abs(k[:, None] - knots[None, :]) / h)
-    B[n:] = 0.0
-    return B
-

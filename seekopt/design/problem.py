@@ -86,7 +86,10 @@ class SolverSettings:
         cycling), an iteration limit or an answer that fails the constraint re-check -- before
         anything is called infeasible (:class:`seekopt.design.solvers.SolverChain`).  The first
         fallback also re-checks an "infeasible" of ``daqp_pkg`` that the answer rests on (the package
-        returns no usable multipliers with it; :class:`seekopt.design.working_set.WorkingSetQP`).
+        returns no usable multipliers with it; :class:`seekopt.design.working_set.WorkingSetQP`);
+        ``daqp_prox`` (the package with proximal iterations) answers where an ill-conditioned Hessian
+        makes both daqps cycle; every fallback has an iteration or time limit (a failed fallback proves
+        nothing: the length is skipped, never waited on).
     options : dict
         ``{solver name: plugin options}``.
     max_samples : int
@@ -113,7 +116,7 @@ class SolverSettings:
     """
 
     qp_solver: str = DAQP_PKG
-    fallbacks: tuple = ("daqp", "qpoases", "highs")
+    fallbacks: tuple = ("daqp", "daqp_prox", "qpoases", "highs")
     options: dict = field(default_factory=dict)
     max_samples: int = 512
     size_classes: tuple = SIZE_CLASSES

@@ -18,10 +18,12 @@ from enum import Enum
 import casadi as ca
 import numpy as np
 
-__all__ = ["QPStatus", "classify_status", "QPSolution", "DAQP_PKG", "dm"]
+__all__ = ["QPStatus", "classify_status", "QPSolution", "DAQP_PKG", "DAQP_PROX", "dm"]
 
 #: The ``daqp`` package called directly (:class:`seekopt.design.daqp_solver.DaqpQP`).
 DAQP_PKG = "daqp_pkg"
+#: The same package with proximal-point iterations (a fallback for ill-conditioned Hessians).
+DAQP_PROX = "daqp_prox"
 
 
 class QPStatus(str, Enum):
@@ -53,7 +55,7 @@ def classify_status(solver: str, raw, success: bool) -> QPStatus:
     ``numerical``.  Unknown statuses are never taken as proof of infeasibility.
     """
     text = str(raw).strip()
-    if solver in ("daqp", DAQP_PKG):
+    if solver in ("daqp", DAQP_PKG, DAQP_PROX):
         try:
             return _DAQP.get(int(float(text)), QPStatus.NUMERICAL)
         except ValueError:

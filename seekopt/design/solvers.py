@@ -7,6 +7,8 @@ All solvers take ``min 1/2 x'Hx + g'x  s.t. lba <= A x <= uba, lbx <= x <= ubx``
   same dual active-set algorithm as casadi's daqp plugin, 2x less CPU on the design QPs, and it takes
   a starting active set (``lam_a0``/``lam_x0``: the previous length's or round's multipliers); its
   "infeasible" carries ``proven`` (its multipliers checked as a Farkas certificate on the data);
+* ``daqp_prox`` -- :class:`DaqpQP` with proximal iterations (:data:`PROX_OPTIONS`), a fallback for
+  ill-conditioned Hessians where both daqps cycle;
 * :class:`ConicQP` -- ``casadi.conic`` with a QP plugin (``daqp``, ``qpoases``, ``highs``,
   ``osqp``, ``proxqp``, ``qrqp``), built once for a fixed size;
 * :class:`IpoptQP` -- the same problem as an ``Opti`` + Ipopt NLP (``hessian_constant``,
@@ -31,18 +33,27 @@ import casadi as ca
 import numpy as np
 
 from seekopt.design.certificates import farkas_certificate, proves_infeasible  # noqa: F401
-from seekopt.design.daqp_solver import DaqpQP, kkt_holds  # noqa: F401
-from seekopt.design.qp_status import (DAQP_PKG, QPSolution, QPStatus, _nan_safe, _quiet_stdout,  # noqa: F401
+from seekopt.design.daqp_solver import PROX_OPTIONS, DaqpQP, kkt_holds  # noqa: F401
+from seekopt.design.qp_status import (DAQP_PKG, DAQP_PROX, QPSolution, QPStatus, _nan_safe, _quiet_stdout,  # noqa: F401
                                       classify_status, dm)
 
 __all__ = ["QPStatus", "classify_status", "QPSolution", "ConicQP", "DaqpQP", "IpoptQP", "make_qp_solver",
-           "SolverChain", "QP_PLUGINS", "DAQP_PKG", "QP_SOLVERS", "dm", "kkt_holds", "proves_infeasible", "farkas_certificate",
+           "SolverChain", "QP_PLUGINS", "DAQP_PKG", "DAQP_PROX", "QP_SOLVERS", "dm", "kkt_holds", "proves_infeasible", "farkas_certificate",
            "constraint_violation"]
 
 #: ``casadi.conic`` plugins the designer accepts.
 QP_PLUGINS = ("daqp", "qpoases", "highs", "osqp", "proxqp", "qrqp")
+#: Time limit [s] of a HiGHS solve (``time_limit``): a fallback that does not finish proves nothing
+#: and the search moves on.
+FALLBACK_LIMIT_S = 2.0
+#: qpOASES working-set recalculations per (variable + row) (``nWSR``; casadi 3.8.2's qpOASES does not
+#: honour its ``CPUtime`` option: measured 15.7 s CPU with ``CPUtime=2``).  With casadi's default, qpOASES took
+#: 15-25 s per solve on the ill-conditioned (cond(H) ~ 7e10) whole-row QP of nominal K = 3888 on the truth
+#: plant (222 variables, 1072 rows) where both daqps cycle, and the design ran for minutes; with
+#: 1000 recalculations it stops after 0.6 s CPU.
+QPOASES_NWSR_PER_DIM = 2
 #: Every solver name :func:`make_qp_solver` accepts (``DAQP_PKG``: :class:`DaqpQP`).
-QP_SOLVERS = (DAQP_PKG,) + QP_PLUGINS + ("ipopt",)
+QP_SOLVERS = (DAQP_PKG, DAQP_PROX) + QP_PLUGINS + ("ipopt",)
 
 
 class ConicQP:
@@ -63,7 +74,8 @@ class ConicQP:
             raise ValueError(f"unknown QP plugin {plugin!r} (choose from {', '.join(QP_PLUGINS)})")
         self.n, self.m, self.plugin = int(n), int(m), plugin
         opts = {"error_on_fail": False, "verbose": False}
-        quiet = {"qpoases": {"printLevel": "none"}, "highs": {"highs": {"output_flag": False}},
+        quiet = {"qpoases": {"printLevel": "none", "nWSR": QPOASES_NWSR_PER_DIM * (self.n + self.m)},
+                 "highs": {"highs": {"output_flag": False, "time_limit": FALLBACK_LIMIT_S}},
                  "osqp": {"osqp": {"verbose": False, "eps_abs": 1e-7, "eps_rel": 1e-7, "max_iter": 50000,
                                    "polishing": True}},
                  "proxqp": {"proxqp": {"backend": "dense", "eps_abs": 1e-9}},
@@ -71,6 +83,7 @@ class ConicQP:
                  "daqp": {"daqp": {"iter_limit": 5000, "primal_tol": 1e-9}}}
         opts.update(quiet.get(plugin, {}))
         opts.update(options or {})
+        self.options = opts             # as built (plugin options included)
         sp = {"h": ca.Sparsity.dense(self.n, self.n), "a": ca.Sparsity.dense(self.m, self.n)}
         with _quiet_stdout(plugin == "qpoases"):      # qpOASES prints its licence banner at construction
             self._solver = ca.conic(f"seek_qp_{plugin}", plugin, sp, opts)
@@ -203,10 +216,12 @@ def constraint_violation(A: np.ndarray, x: np.ndarray, lba, uba, lbx, ubx, abs_A
 
 
 def make_qp_solver(n: int, m: int, solver: str = DAQP_PKG, options: dict | None = None):
-    """:class:`DaqpQP` for ``solver="daqp_pkg"``, :class:`IpoptQP` for ``"ipopt"``, else :class:`ConicQP`
+    """:class:`DaqpQP` for ``solver="daqp_pkg"`` (and, proximal, ``"daqp_prox"``), :class:`IpoptQP` for ``"ipopt"``, else :class:`ConicQP`
     with that plugin."""
     if solver == DAQP_PKG:
         return DaqpQP(n, m, options)
+    if solver == DAQP_PROX:
+        return DaqpQP(n, m, dict(PROX_OPTIONS, **(options or {})), name=DAQP_PROX)
     return IpoptQP(n, m, options) if solver == "ipopt" else ConicQP(n, m, solver, options)
 
 
@@ -281,7 +296,7 @@ class SolverChain:
             solver = self.get(name)
             if i == 0 and lam0 is not None and getattr(solver, "warm_duals", False):
                 sol = solver.solve(*data, x0=x0, lam_a0=lam0[0], lam_x0=lam0[1])
-            elif name != DAQP_PKG and isinstance(data[2], np.ndarray) and len(data[2]) < self.m:
+            elif name not in (DAQP_PKG, DAQP_PROX) and isinstance(data[2], np.ndarray) and len(data[2]) < self.m:
                 sol = self._padded(solver, data, x0 if i == 0 else None)
             else:
                 sol = solver.solve(*data, x0=x0 if i == 0 else None)

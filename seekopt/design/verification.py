@@ -1,5 +1,6 @@
 """The verification of a designed seek: the QP's answer unpacked to a profile at rest, played once by the
-one simulator (:func:`seekopt.design.metrics.played_metrics`) on the design plant -- within Imax, settled
+one simulator (:func:`seekopt.design.metrics.played_metrics`, or its impulse responses convolved for a
+plant whose loop superposes) on the design plant -- within Imax, settled
 by its sample when asked --, the honest predictions on every plant of the robust set
 (:func:`seekopt.design.predict.predict_on_set`) and the unmodelled-mode guard's report
 (:func:`seekopt.design.guard.guard_report`), packaged as a :class:`DesignResult`.
@@ -14,8 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from seekopt.design import guard as _guard
-from seekopt.design.metrics import DEFAULT_TAIL_S, played_metrics, worst_case
-from seekopt.design.predict import play_linear, predict_on_set, superposes
+from seekopt.design.metrics import DEFAULT_TAIL_S, played_metrics, seek_metrics, worst_case
+from seekopt.design.predict import feedforward_scale, play_linear, predict_on_set, superposes
 from seekopt.design.profiles import Profile, exact_rest, finish_profile
 from seekopt.design.result import DesignError, DesignResult, SolveStats
 
@@ -55,15 +56,30 @@ def played_design(self, qp, sol, K, N, objective, strict, settle_n=None) -> "Pla
         prof = finish_profile(u, K, self.fs, self.imax, self._reference_model(), "optimal", self.settle,
                               meta=meta)
         prof.seek_samples = len(u)
-    # the one simulator, played once: a guard on a loop the maps cannot play (it does not superpose)
-    # reads this play's sub-step currents
-    sub = bool(self.guard_bands) and (self._maps is None or not superposes(self.plant))
-    metrics, sim = played_metrics(self.plant, self.controller, prof, settle=self.settle, record_substeps=sub)
+    metrics, sim = _play(self, prof)
     if not metrics.peak_current_a <= self.imax * (1 + 1e-9):
         raise DesignError(f"design exceeds Imax in simulation ({metrics.peak_current_a:.4g} A)")
     if strict and not metrics.settle_time_s * self.fs <= N + 1 + 1e-9:
         raise DesignError(f"design does not settle by sample {N} in simulation")
     return PlayedDesign(qp, sol, K, N, n_set, objective, prof, metrics, sim)
+
+
+def _play(self, prof: Profile):
+    """``(metrics, play)`` of ``prof`` on the design plant.  A plant whose loop superposes
+    (:func:`~seekopt.design.predict.superposes`, no feedforward calibration of its own) is played by
+    :func:`~seekopt.design.predict.play_linear` on the designer's maps when they are long enough (the
+    one simulator's own impulse responses, convolved: the same traces without the per-sample loop;
+    ``play`` is then None); any other plant by the one simulator, once -- a guard on a loop the maps
+    cannot play reads that play's sub-step currents."""
+    maps = self._maps
+    n_play = max(prof.n + int(round(DEFAULT_TAIL_S * self.fs)), prof.n + 1)
+    if maps is not None and superposes(self.plant) and feedforward_scale(self.plant) == 1.0:
+        played = play_linear(maps[0], prof, n_play)
+        if played is not None:
+            pes, cur = played
+            return seek_metrics(pes, float(np.max(np.abs(cur))), prof, self.fs, self.settle, self.plant.k0), None
+    sub = bool(self.guard_bands) and (maps is None or not superposes(self.plant))
+    return played_metrics(self.plant, self.controller, prof, settle=self.settle, record_substeps=sub)
 
 
 @dataclass

@@ -239,6 +239,20 @@ class WorkingSetQP:
                         break
                 return self._done(full, attempts, wall, cpu)
             self._add(work, viol, len(fv), near=True)
+        if not screen and why != "rounds":
+            # every row was in this QP: the full QP is the same problem (fixed variables substituted, free
+            # rows dropped) and every solver of the chain has just failed on it: no proof, the caller's
+            # search moves on (re-solving it ran the whole chain again: 15-25 s of qpOASES per length on
+            # nominal K = 3888 before qpOASES had an iteration limit)
+            out = self._full(sol, fv, xfix, rows, cand)
+            if out.outcome in (QPStatus.OPTIMAL, QPStatus.INFEASIBLE):
+                out.outcome = QPStatus.NUMERICAL
+            out.success, out.status = False, f"{out.status}; {why}"
+            if attempts and attempts[-1][2] != out.outcome.value:      # the re-check's verdict, as the chain's
+                name, status, _ = attempts[-1]
+                attempts[-1] = (name, f"{status}; {why}", out.outcome.value)
+            self.last_fallback = why
+            return self._done(out, attempts, wall, cpu)
         # the full QP, as without the working set
         self.full_solves += 1
         self.last_fallback = why
