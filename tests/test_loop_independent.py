@@ -27,11 +27,9 @@ def _row(case: str) -> dict:
     return lq.run_case("50k", case, SEEKS)
 
 
-_MISSED = {"kt_bias_friction": "measured 2026-11-28 (h-fric2): Kt(x) + position bias + friction on the 50.4 kHz drive: all "
-                               "three accepted, validation RMS 74.1 -> 0.603 track against the clean drive's 0.141 (4.3x; "
-                               "1.27 before the friction fit refined the bias table's shape by simulation, 7.09 before "
-                               "h-fric); what is left is mostly long seeks (bias table 0.45 mA low at the truth's kink at "
-                               "20 ktrack, Coulomb level 16 % high in acceleration)"}
+#: cases measured to miss the target (strict xfail with the figure); none since h-loopq (kt_bias_friction:
+#: 75.59 -> 0.1901 track against the clean drive's 0.1411, 1.35x, with the joint output-error refit by simulation)
+_MISSED: dict = {}
 
 
 @pytest.mark.parametrize("case", [pytest.param(c, marks=pytest.mark.xfail(strict=True, reason=_MISSED[c]))

@@ -59,6 +59,13 @@ class LoopSettings:
         friction fit refines by simulation when the plant has a position-bias table (0: none) [-].
     friction_table_evals : int
         Simulations that refinement may spend (Powell) [-].
+    joint_iters : int
+        After each acceptance, when the plant has an effect only its own simulation reproduces
+        (friction), at most this many Levenberg-Marquardt iterations of the joint output-error
+        refit by simulation of the base and all accepted effects (0: none) [-].
+    joint_table_knots : int
+        Coarse knots (over the fitted positions) of the position-bias table's correction in that
+        joint refit [-].
 
     Evidence
 
@@ -87,6 +94,8 @@ class LoopSettings:
     search_samples: int = 8000
     friction_table_knots: int = 5
     friction_table_evals: int = 150
+    joint_iters: int = 6
+    joint_table_knots: int = 13
     false_alarm: float = 0.01
     unexplained_p: float = 1e-4
     unexplained_min_val_drop: float = 0.02

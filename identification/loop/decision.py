@@ -1,0 +1,55 @@
+"""The loop's decision: does a fitted candidate pass, and is it only a proxy?
+
+A candidate effect is accepted (:func:`passes`) when its output-error BIC on the fit data drops,
+its validation RMS drops and most validation seeks improve (a re-parameterisation with fewer
+parameters must only not be worse); it is refused as a proxy (:func:`proxy_for`) when a
+free-form correction along a variable no library effect models explains clearly more and the
+candidate adds nothing on top of it.  Thresholds: :class:`identification.loop.settings.LoopSettings`.
+Units: track (validation RMS), nats (BIC).
+"""
+from __future__ import annotations
+
+from identification.loop.evidence import dependence
+from identification.loop.fit_engine import Data
+from identification.loop.result import Step
+from identification.loop.settings import LoopSettings
+
+__all__ = ["OUT_OF_LIBRARY", "passes", "proxy_for"]
+
+#: free-form dependences along variables that no library effect models; a candidate that
+#: explains clearly less than one of them is a proxy and is not accepted
+OUT_OF_LIBRARY = ("gain_vs_time", "force_vs_time", "current_error_vs_current")
+
+
+def proxy_for(best, cur, fit: Data, val: Data, st: LoopSettings) -> list:
+    """The free-form corrections along variables outside the library (:data:`OUT_OF_LIBRARY`)
+    that make the candidate ``best`` (``(Step, fit residual, validation residual)``) a proxy.
+
+    A free-form correction is flexible: on a log with several effects it can take up more of the
+    misfit than any one library effect does, the real one included.  So a correction that lowers
+    the validation RMS by more than ``st.proxy_margin`` beyond the candidate's drop makes it a
+    proxy only if the candidate adds nothing to it: with the same correction fitted on top of
+    the candidate, the validation RMS must not fall more than ``st.proxy_margin`` below the
+    correction's alone (the candidate explains structure the free form does not)."""
+    step, rf, rv = best
+    best_drop = 1 - step.rms_after / cur.val.rms
+    free = [d for d in dependence(cur.plant, fit.freeze(cur.plant, cur.fit), val.freeze(cur.plant, cur.val),
+                                  OUT_OF_LIBRARY)
+            if d.p < st.unexplained_p and d.val_drop > best_drop + st.proxy_margin]
+    if not free or rf is None:
+        return free
+    on_top = {d.name: d for d in dependence(step.plant, fit.freeze(step.plant, rf), val.freeze(step.plant, rv),
+                                            [d.name for d in free])}
+    return [d for d in free
+            if rv.rms * (1 - max(on_top[d.name].val_drop, 0.0)) > (1 - st.proxy_margin) * cur.val.rms * (1 - d.val_drop)]
+
+
+def passes(step: Step, cur, st: LoopSettings) -> bool:
+    """Does the candidate ``step`` (tried on the current state ``cur``) pass the acceptance rules
+    of :class:`LoopSettings` (BIC drop, validation drop, seeks improved; see the module notes)?"""
+    if not step.bic_drop > st.min_bic_drop:
+        return False
+    if step.n_params <= 0:        # a re-parameterisation with fewer parameters: no worse
+        return step.rms_after <= cur.val.rms
+    return (step.rms_after <= (1 - st.min_validation_drop) * cur.val.rms
+            and step.improved_fraction >= st.min_improved_seeks)
