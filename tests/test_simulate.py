@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from identification.model.plant import ModalPlant, Mode
+from identification.model.plant import ModalPlant
 from seekopt.drive.controller import Controller
 from seekopt.drive.presets import default_truth_plant, nss_disturbances
 from seekopt.design.profiles import reference_from_model, shortest_baseline

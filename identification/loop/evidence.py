@@ -102,7 +102,7 @@ def dependence(plant: ModalPlant, data: Data, val: Data | None = None, names=Non
     eng = Engine(plant, data)
     veng = Engine(plant, val) if val is not None else None
     e_val = veng.residual() if veng is not None else None
-    bfit, bval = eng.base_cols(), (veng.base_cols() if veng is not None else None)
+    bfit = eng.base_cols()
     out = []
     for name in names or list(DEPENDENCE_TESTS) + ["force_vs_velocity_sign"]:
         if name == "force_vs_velocity_sign":

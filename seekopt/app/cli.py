@@ -47,7 +47,7 @@ __all__ = ["main", "build_parser", "UsageError", "read_log_cli", "progress", "wa
 _DESCRIPTION = ("seekopt: seek-profile optimisation for hard-disk-drive servo engineers. Seek logs -> modal "
                 "plant (identify, loop) -> minimum seek-settle-time profiles (design, bench) -> TPI x length "
                 "sweeps -> fixed-point firmware tables (export).")
-_EPILOG = f"""\
+_EPILOG = """\
 units: position [track], current [A], time [s], frequency [Hz]; track density [track/inch] (TPI).
 default controller (when --controller is not given):
   the IEEJ NSS benchmark's PID + 4 notches at 26400 Hz (notches at twice the PES rate;

@@ -283,7 +283,7 @@ class SeekNLP:
         ops = casadi_ops(self.smoothing)
         F, (nx, nh, nc), self.dp = closed_loop_sample(plant, controller, ops)
         self.dims, nz = (nx, nh, nc), nx + nh + nc
-        N, H, L = int(nmax), int(nmax) + int(tail), self.L
+        N, H = int(nmax), int(nmax) + int(tail)
         self.N, self.H, self.nz = N, H, nz
         xr, ur = ca.SX.sym("x", nz), ca.SX.sym("u", 3)
         xn, hn, xcn, yr, ir = close_sample(F)(xr[:nx], xr[nx:nx + nh], xr[nx + nh:], ur[0], ur[1], ur[2])

@@ -177,7 +177,7 @@ class SeekQP:
                  rho: float = 1e-2, rho_q: float = 1e-3, w_e: float = 1.0, w_t: float = 10.0,
                  eps: float = 1e-9, current_extra: int = 40, stride: int = 1, input_tail: int = 0):
         t_build = time.perf_counter()
-        Ns, Hn, L = int(nmax), int(horizon), maps[0].L
+        Ns, Hn = int(nmax), int(horizon)
         self.input_tail = int(input_tail)
         N = Ns + self.input_tail            # input samples (the rows below use N input columns)
         if N > Hn:

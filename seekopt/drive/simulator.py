@@ -197,7 +197,6 @@ def closed_loop_responses(plant: ModalPlant, controller, n: int):
     rate, so these define the Toeplitz (convolution) maps used by the optimiser.
     """
     lin = plant.linear_part()
-    L = int(controller.fast_multiple)
     out = {}
     for name in ("uff", "r"):
         imp = np.zeros(n); imp[0] = 1.0
