@@ -207,13 +207,16 @@ class EffectAwareDesigner:
         solves: list = []
         cache: dict = {}
 
-        def feasible(n):
+        def feasible(n, checking=False):
+            # ``max_nlps`` bounds the length search; the full-plant check's step-up (at most ``check_steps``
+            # lengths above the search's answer) solves its own NLPs: a budget spent by the search must not
+            # leave the step-up without candidates
             if n in cache:
                 return cache[n][0]
             if time.process_time() - t_begin > st.design_cpu_s:
                 raise NLPDesignError(f"design of {K:g} tracks from track {T0:g} ran out of time "
                                      f"({st.design_cpu_s:g} s CPU, {len(solves)} NLPs)")
-            if len(solves) >= st.max_nlps and any(ok for ok, *_ in cache.values()):
+            if not checking and len(solves) >= st.max_nlps and any(ok for ok, *_ in cache.values()):
                 raise _Budget()
             nlp, spread = self._nlp(n)
             ok_prev = [m for m, (ok, *_ ) in cache.items() if ok]
@@ -262,10 +265,7 @@ class EffectAwareDesigner:
                 list(range(hi + 1, min(hi + st.check_steps, n_cap) + 1)):
             if tried >= st.check_steps:
                 break
-            try:
-                if not feasible(n):
-                    continue
-            except _Budget:
+            if not feasible(n, checking=True):
                 continue
             tried += 1
             _, v, q, _ = cache[n]
