@@ -408,14 +408,14 @@ class SeekDesigner:
         if len(self.plants) < 2 or not self.problem.nominal_first or N - 1 <= lo:
             return None
 
-        def probe(n0, warm=None, confirm=False):
+        def probe(n0, warm=None, _confirm=None):     # the search's protocol; never confirmed here (above)
             return self._solve(qp, K, N, self.beta, stats, warm=warm, confirm=False, nominal_from=n0)
-        s = probe(N - 1, best.x, True)
+        s = probe(N - 1, best.x)
         if not s.success:
             return None
         hi, best, step, low = N - 1, s, 1, lo         # gallop down (1, 2, 4, ...), then bisect
         while hi - step > lo:
-            t = probe(hi - step, best.x, False)
+            t = probe(hi - step, best.x)
             if not t.success:
                 low = hi - step
                 break
@@ -423,7 +423,7 @@ class SeekDesigner:
         n0, best = bisect_length(probe, low, hi, best, lambda n: False, floor=lo)
         for n in range(n0, N):            # the simulator decides; step up on failure
             if n != n0:
-                best = probe(n, best.x, True)
+                best = probe(n, best.x)
                 if not best.success:
                     continue
             try:
