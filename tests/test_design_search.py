@@ -16,6 +16,7 @@ from seekopt.design.working_set import WorkingSetQP
 from seekopt.drive.controller import Controller
 from seekopt.drive.presets import default_truth_plant
 from seekopt.evaluate.bench import perturbed_plant
+from tests.qp_cases import two_conflicting_rows
 
 IMAX = 0.3
 
@@ -117,15 +118,7 @@ def test_cutting_plane_certificate_proves_on_few_rows():
     """WorkingSetQP._certificate: the rows the solver names are feasible on their own; the rows the
     phase-1 LP's point violates join until the LP proves infeasibility -- a verified certificate on
     a few rows of many (never the whole set's LP when the cuts suffice)."""
-    rng = np.random.default_rng(7)
-    n = 6
-    lbx, ubx = -np.ones(n), np.ones(n)
-    a = np.zeros(n); a[:2] = 1.0                                  # x0 + x1 >= 1.5
-    b = np.zeros(n); b[0], b[1] = 1.0, -1.0                       # x0 - x1 >= 1.5  (with a: x0 >= 1.5 > 1)
-    spare = rng.standard_normal((200, n))                         # |spare x| <= 50: never binding
-    A = np.vstack([a, spare[:100], b, spare[100:]])
-    lba = np.r_[1.5, np.full(100, -50.0), 1.5, np.full(100, -50.0)]
-    uba = np.r_[np.inf, np.full(100, 50.0), np.inf, np.full(100, 50.0)]
+    A, lba, uba, lbx, ubx = two_conflicting_rows()
     named = np.zeros(len(A)); named[0] = -1.0                     # the solver names row a only
     lam = WorkingSetQP._certificate(A, lba, uba, lbx, ubx, len(A), named)
     assert lam is not None and proves_infeasible(A, lba, uba, lbx, ubx, lam)

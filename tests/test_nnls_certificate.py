@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from seekopt.design.certificates import nnls_certificate, phase1_lp, proves_infeasible
+from tests.qp_cases import two_conflicting_rows
 
 
 def _system(seed: int, infeasible: bool):
@@ -39,15 +40,7 @@ def test_nnls_certificate_proves_infeasible_rows_and_nothing_else(seed):
 def test_nnls_certificate_cuts_in_the_rows_the_named_ones_lack():
     """Named rows feasible on their own: the rows their least-norm point violates join (cutting planes)
     until the certificate holds -- on the two rows that conflict, out of 202."""
-    rng = np.random.default_rng(7)
-    n = 6
-    lbx, ubx = -np.ones(n), np.ones(n)
-    a = np.zeros(n); a[:2] = 1.0                                  # x0 + x1 >= 1.5
-    b = np.zeros(n); b[0], b[1] = 1.0, -1.0                       # x0 - x1 >= 1.5  (with a: x0 >= 1.5 > 1)
-    spare = rng.standard_normal((200, n))                         # |spare x| <= 50: never binding
-    A = np.vstack([a, spare[:100], b, spare[100:]])
-    lba = np.r_[1.5, np.full(100, -50.0), 1.5, np.full(100, -50.0)]
-    uba = np.r_[np.inf, np.full(100, 50.0), np.inf, np.full(100, 50.0)]
+    A, lba, uba, lbx, ubx = two_conflicting_rows()
     lam = nnls_certificate(A, lba, uba, lbx, ubx, [0])
     assert lam is not None and proves_infeasible(A, lba, uba, lbx, ubx, lam)
     assert set(np.flatnonzero(lam)) == {0, 101}
