@@ -525,3 +525,59 @@ def test_hat_basis_interpolates_on_its_knots_and_is_zero_after_the_seek():
     assert np.allclose(B[:n, :len(k)].sum(axis=1), 1.0)
     per_sample = hat_basis(correction_knots(8, st), nmax, 8)
     assert np.array_equal(per_sample[:8], np.eye(8))
+
+
+def test_full_plant_step_up_solves_its_own_nlps_beyond_the_search_budget(ctrl, monkeypatch):
+    """``max_nlps`` bounds the length search only: when the search has spent it and its answer fails the
+    full-plant check, the step-up still solves the NLP of the next length (commit f669063) instead of
+    skipping it and falling back to the linear design.  The search here spends the budget of one NLP on a
+    length ``h`` that the check rejects; the answer is the NLP design of ``h + 1``."""
+    des = EffectAwareDesigner(kt_plant(), ctrl, IMAX, 0.1, None, NLPSettings(tail_s=0.002, max_nlps=1))
+    real_accept = des._accept
+    picked = {}
+
+    def search(feasible, residual, n0, beta, n_cap):
+        h = n_cap - 2
+        assert feasible(h)                       # the one NLP of the budget, feasible
+        picked["h"] = h
+        return h - 1, h
+
+    def accept(prof, K, T0, n=None):
+        m, n_ok, held = real_accept(prof, K, T0, n)
+        if prof.kind == "optimal-nlp" and n == picked.get("h"):
+            return m, None, math.inf             # the search's answer fails the full-plant check
+        return m, n_ok, held
+    monkeypatch.setattr(nlpmod, "_search_length", search)
+    monkeypatch.setattr(des, "_accept", accept)
+    res = des.design(10.0, 12000.0)
+    assert len(res.solves) == 2 > des.settings.max_nlps
+    assert res.profile.meta["design_path"] == "nlp" and res.settle_samples == picked["h"] + 1
+    assert res.metrics.peak_current_a <= IMAX * (1 + 1e-9) and res.metrics.settled
+
+
+def test_current_headroom_holds_imax_on_a_drive_whose_kt_differs_by_the_stated_uncertainty(ctrl):
+    """The effect-aware design's current headroom (``NLPSettings.kt_uncertainty``, 5 % of the torque
+    constant by default): a current-limited seek (K = 10 at Imax 20 mA from track 12000, Kt 0.88 there)
+    designed on the plant of an independent drive (tests/drives, its Kt(x) +-20 % over the range) and played
+    on that drive with its torque constant 5 % lower and 5 % higher (forces in N unchanged: the bias in A
+    scaled by 1/f) draws at most Imax on every sub-step.  Without the headroom the same design drew
+    0.02023 A on the 5 % weaker drive (measured; 0.0194 A on the design plant)."""
+    import dataclasses
+    from tests.drives import modal_plant, nss_drive, nss_truth, run
+    imax, K, T0 = 0.02, 10.0, 12000.0
+    truth = dataclasses.replace(nss_truth(bias_a=0.004), kt_coeffs=(0.2,), kt_center_track=30000.0,
+                                kt_scale_track=30000.0)
+    plant = modal_plant(nss_drive(truth, noise=False))
+    plant.meta = {"position_range_track": RANGE}
+    st = NLPSettings(tail_s=0.002)
+    assert st.kt_uncertainty == 0.05
+    res = EffectAwareDesigner(plant, ctrl, imax, 0.1, None, st).design(K, T0)
+    prof = res.profile
+    assert float(prof.meta["kt_uncertainty"]) == pytest.approx(0.05)
+    assert res.metrics.peak_current_a >= 0.9 * imax            # the current limit binds this seek
+    for f in (1 - st.kt_uncertainty, 1 + st.kt_uncertainty):
+        other = dataclasses.replace(truth, k0=truth.k0 * f, bias_a=truth.bias_a / f)
+        uff, r = prof.padded(prof.n + 200)
+        hold = other.holding_current(T0)
+        tr = run(nss_drive(other, noise=False), uff + hold, r + T0, position0=T0, current0=hold)
+        assert np.max(np.abs(tr.current_sub_a)) <= imax, f

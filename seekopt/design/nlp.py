@@ -37,9 +37,10 @@ from identification.model.plant import ModalPlant
 
 from seekopt.design import guard as _guard
 from seekopt.design.designer import DesignResult, SeekDesigner
-from seekopt.design.feasibility import (compensate, hold_check, hold_current, nonlinear_effects, play_seek,
-                                        resolve_start)
+from seekopt.design.feasibility import (compensate, hold_check, hold_current, kt_scaled, nonlinear_effects,
+                                        play_seek, resolve_start)
 from seekopt.design.metrics import SeekMetrics
+from seekopt.design.predict import set_loop_maps
 from seekopt.design.nlp_search import _search_length, _stretch, _verified_samples
 from seekopt.design.nlp_problem import (BUILD_COUNT, NLPSettings, NLPSolve, RobustSpread, SeekNLP,
                                         close_sample, closed_loop_sample)
@@ -95,6 +96,10 @@ class NLPDesignResult:
     def ipopt_time_s(self) -> float:
         return sum(s.wall_s for s in self.solves)
 
+    @property
+    def ipopt_cpu_s(self) -> float:
+        return sum(s.cpu_s for s in self.solves)
+
 
 # ------------------------------------------------------------------------------- designer
 class EffectAwareDesigner:
@@ -126,6 +131,11 @@ class EffectAwareDesigner:
         self.fs, self.L = float(controller.sample_rate_hz), int(controller.fast_multiple)
         self.nlp_plant = plant.copy(effects=[e for e in plant.effects if e.kind != "output"])
         self.robust = robust
+        # the current headroom: the drive's torque constant may differ from the plant's by kt_u (a fraction);
+        # the NLP holds its current rows, the full-plant check Imax, on the plant with its gain scaled so
+        std_k0 = float((plant.std or {}).get("k0") or 0.0)
+        self.kt_u = max(self.settings.kt_uncertainty, 3.0 * std_k0 / plant.k0) if self.settings.kt_uncertainty > 0 else 0.0
+        self.kt_plants = [kt_scaled(self.nlp_plant, 1.0 + s * self.kt_u) for s in (-1.0, 1.0)] if self.kt_u > 0 else []
         tail = {} if self.settings.tail_s is None else {"tail_s": self.settings.tail_s}
         self.problem = SeekProblem(plant.linear_part(), controller, imax, settle,
                                    band_margin=self.settings.band_margin,
@@ -139,6 +149,7 @@ class EffectAwareDesigner:
         self._nlps: dict = {}
         self._spreads: dict = {}
         self._derated: dict = {}
+        self.kt_peak_a = math.nan
 
     def _set_maps(self, c: int) -> list:
         """The robust set's closed-loop maps for the size class ``c``: the linear designer's
@@ -155,10 +166,13 @@ class EffectAwareDesigner:
                                  f"({self.settings.max_samples} samples)")
         if c not in self._nlps:
             maps = self._set_maps(c)
-            if len(self.linear.plants) > 1:
+            # the torque-constant headroom: current rows only, on the linear loop with the gain scaled
+            kt_maps = set_loop_maps([p.linear_part() for p in self.kt_plants], self.controller, maps[0].horizon) \
+                if self.kt_plants else []
+            if len(self.linear.plants) > 1 or kt_maps:
                 prev = max([k for k in self.sizes if k < c], default=0)
-                self._spreads[c] = RobustSpread(maps, c, c + self.tail, self.settle, nmax_prev=prev,
-                                                stride=self.linear._stride(c))
+                self._spreads[c] = RobustSpread(maps + kt_maps, c, c + self.tail, self.settle, nmax_prev=prev,
+                                                stride=self.linear._stride(c), current_only=len(kt_maps))
             # the linear designer's unmodelled-mode guard: same bands, rows and horizon, on the nominal
             # linear loop
             guard, Hq = None, c + self.linear.tail
@@ -234,7 +248,7 @@ class EffectAwareDesigner:
                 _, e, i = nlp.rollout(x0, v, q, K, T0, self.imax, uh)
                 dE, _ = spread.spread(v, q, K, self.imax)
                 rec.residual = max(rec.residual, float(np.max(np.abs(e[n:] + np.vstack([0 * e, dE])[:, n:]))))
-            say(f"  NLP N={n}: {rec.status}, {rec.iterations} it, {rec.wall_s:.2f} s, residual {rec.residual:.3g} band, "
+            say(f"  NLP N={n}: {rec.status}, {rec.iterations} it, {rec.wall_s:.2f} s ({rec.cpu_s:.2f} s CPU), residual {rec.residual:.3g} band, "
                 f"current slack {rec.slack:.2g}, guard excess {rec.guard_excess:.2g} band")
             good = rec.success and rec.residual <= st.band_margin * (1 + 1e-6) and rec.slack <= st.slack_tol
             res = rec.residual if rec.slack <= st.slack_tol else max(rec.residual, st.band_margin * (1 + rec.slack))
@@ -274,14 +288,16 @@ class EffectAwareDesigner:
             if n_ok == n:
                 rec = next(s for s in reversed(solves) if s.n_seek == n)
                 prof.meta.update(guard_excess_band=round(rec.guard_excess, 4),
-                                 warm_start_imax_a=round(warm.profile.imax_a, 5))
+                                 warm_start_imax_a=round(warm.profile.imax_a, 5),
+                                 peak_current_kt_a=round(self.kt_peak_a, 5))
                 prof.meta.update(design_status="verified", design_path="nlp", ipopt_iterations=sum(s.iterations for s in solves),
-                                 ipopt_time_s=round(sum(s.wall_s for s in solves), 3), n_nlp=len(solves))
+                                 ipopt_time_s=round(sum(s.wall_s for s in solves), 3),
+                         ipopt_cpu_s=round(sum(s.cpu_s for s in solves), 3), n_nlp=len(solves))
                 return NLPDesignResult(prof, m, T0, n, solves, lin, lin_m,
                                        sum(p.build_time_s for p in self._nlps.values()))
             say(f"  N={n}: full-plant check failed (settle {m.settle_time_s * 1e3:.3f} ms, "
-                f"peak {m.peak_current_a:.4g} A, peak |PES| {held:.3g} band over the {self.accept_tail} samples "
-                f"after the seek, margin {st.band_margin:g})")
+                f"peak {m.peak_current_a:.4g} A ({self.kt_peak_a:.4g} A at Kt x(1 +- {self.kt_u:g})), peak |PES| "
+                f"{held:.3g} band over the {self.accept_tail} samples after the seek, margin {st.band_margin:g})")
         if n_lin is not None:
             return self._linear_result(lin, lin_m, K, T0, n_lin, solves, say)
         raise NLPDesignError(f"no effect-aware design of {K:g} tracks from track {T0:g} passed the full-plant "
@@ -301,7 +317,7 @@ class EffectAwareDesigner:
         m, sim = play_seek(self.nlp_plant, self.controller, prof, T0, settle=self.settle, horizon_s=horizon)
         pes = np.abs(np.asarray(sim.true_position_track, float) - (T0 + K)) / self.settle
         ns = _verified_samples(m, self.fs, self.imax)
-        if ns is None:
+        if ns is None or not self._within_imax_on_kt(prof, T0):
             return m, None, math.inf
         last = len(pes) - tail - 1                 # the last length whose whole window was played
         lengths = [int(n)] if n is not None else range(max(ns - 1, 1), last + 1)
@@ -312,6 +328,15 @@ class EffectAwareDesigner:
                 return m, k, held
         return m, None, held
 
+    def _within_imax_on_kt(self, prof: Profile, T0: float) -> bool:
+        """The current headroom's check: ``prof`` played from ``T0`` on the design plant with its torque constant
+        ``1 +- kt_u`` times the plant's (:func:`~seekopt.design.feasibility.kt_scaled`) stays within Imax on
+        every sub-step; the worst peak [A] is kept in ``self.kt_peak_a`` (for the profile's metadata)."""
+        peaks = [play_seek(p, self.controller, prof, T0, settle=self.settle, horizon_s=0.004)[0].peak_current_a
+                 for p in self.kt_plants]
+        self.kt_peak_a = max(peaks, default=math.nan)
+        return all(pk <= self.imax * (1 + 1e-9) for pk in peaks)
+
     def _linear_result(self, lin: DesignResult, lin_m: SeekMetrics, K, T0, n_lin: int, solves, say):
         """The linear (QP) design as the answer: accepted on the full plant from ``T0`` by the rule every NLP
         design meets (:meth:`_accept`: within Imax, settled by ``n_lin + 1`` samples, the band margin held over
@@ -321,8 +346,9 @@ class EffectAwareDesigner:
         prof = copy.deepcopy(lin.profile)
         prof.meta.update(start_track=T0, direction="outward" if K > 0 else "inward", design_status="verified",
                          design_path="linear (no effect-aware design settled sooner)",
-                         effects_in_design="none", design_settle_samples=n_lin, ipopt_iterations=sum(s.iterations for s in solves),
-                         ipopt_time_s=round(sum(s.wall_s for s in solves), 3), n_nlp=len(solves))
+                         effects_in_design="none", kt_uncertainty=round(self.kt_u, 6), design_settle_samples=n_lin, ipopt_iterations=sum(s.iterations for s in solves),
+                         ipopt_time_s=round(sum(s.wall_s for s in solves), 3),
+                         ipopt_cpu_s=round(sum(s.cpu_s for s in solves), 3), n_nlp=len(solves))
         return NLPDesignResult(prof, lin_m, T0, n_lin, solves, lin, lin_m,
                                sum(p.build_time_s for p in self._nlps.values()))
 
@@ -359,6 +385,7 @@ class EffectAwareDesigner:
                 "effects_in_design": ";".join(e.name for e in self.nlp_plant.effects) or "none",
                 "robust_warm_start": self.linear.robust.to_string() if self.linear.robust else "none",
                 "band_margin": self.settings.band_margin, "current_margin": self.settings.current_margin,
+                "kt_uncertainty": round(self.kt_u, 6),
                 "design_settle_samples": n, "linear_settle_samples": lin.settle_samples}
         out = [e.name for e in self.plant.effects if e.kind == "output"]
         if out:
