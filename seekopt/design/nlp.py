@@ -146,6 +146,9 @@ class EffectAwareDesigner:
         # band rows after the seek: the linear designer's horizon (one rule, SeekProblem.band_tail_samples);
         # the full-plant acceptance holds the rows' margin over the same samples
         self.tail = self.accept_tail = self.linear.tail
+        # the feedforward and reference may run input_tail samples past the settle sample (the linear designer's
+        # rule, SeekProblem.input_tail_s): an NLP of n samples settles by n, at rest from n + tin
+        self.tin = int(self.linear.input_tail)
         self._nlps: dict = {}
         self._spreads: dict = {}
         self._derated: dict = {}
@@ -160,7 +163,7 @@ class EffectAwareDesigner:
 
     def _nlp(self, n: int):
         """``(SeekNLP, RobustSpread or None)`` of the size class of ``n`` samples (built on first use)."""
-        c = next((c for c in self.sizes if c >= n), None)
+        c = next((c for c in self.sizes if c >= n + self.tin), None)   # the input runs input_tail samples more
         if c is None or c > self.settings.max_samples:
             raise NLPDesignError(f"seek of {n} samples is longer than the largest NLP "
                                  f"({self.settings.max_samples} samples)")
@@ -216,10 +219,37 @@ class EffectAwareDesigner:
         dp = self.nlp_plant.discretize(dt)
         dp.reset(T0, 0.0, current=uh)
         x0 = np.r_[dp.x, dp.hist, np.zeros(self.controller.n_states)]
-        n0 = int(warm.settle_samples)
-        v_w, q_w = comp.current_a[:n0] / self.imax, (warm.profile.reference_track[:n0] - K) / abs(K)
+        n0, tin = int(warm.settle_samples), self.tin
+        # the whole warm start: the linear design's input runs input_tail samples past its settle sample (its
+        # band rows hold from n0); cut at n0 (the former rule) it lost the end of the deceleration (up to
+        # 0.17 A over 8 samples on the combination drive's K = 200): 4.7 band of guard residual, and the NLPs
+        # started from it at other lengths stopped at residuals that rose with the length
+        m_w = int(warm.profile.seek_samples)
+        v_w, q_w = comp.current_a[:m_w] / self.imax, (warm.profile.reference_track[:m_w] - K) / abs(K)
         solves: list = []
         cache: dict = {}
+
+        def _warm_for(n, nmax):
+            """The NLP's starting feedforward and reference for a seek of ``n`` samples (length ``nmax``).
+
+            A shorter seek's NLP answer at rest from ``m < n`` on is a seek of ``n`` samples as it is, with the
+            same worst residual after ``n`` or less: padded with rest, the best of them (lowest residual) starts
+            the NLP, so that the residual the search reads cannot rise with the length.  Time-stretching it
+            instead (the former rule, and still the rule going down) started the NLP at 54 and 62 samples
+            of the combination drive's K = 200 from 50 % far from the 50-sample answer and Ipopt stopped in
+            a worse point: residual 0.80 / 1.32 / 1.36 band at 50 / 54 / 62 samples.  Without a shorter answer:
+            the nearest feasible length, else the warm start, time-stretched to ``n`` samples."""
+            below = [m for m, (_, _, _, res) in cache.items() if m < n and math.isfinite(res)]
+            if below:
+                m = min(below, key=lambda m: (cache[m][3], -m))
+                return (np.r_[cache[m][1], np.zeros(nmax - len(cache[m][1]))],
+                        np.r_[cache[m][2], np.zeros(nmax - len(cache[m][2]))])
+            ok_prev = [m for m, (ok, *_ ) in cache.items() if ok]
+            m = min(ok_prev, key=lambda m: abs(m - n)) if ok_prev else n0
+            vb, qb = (cache[m][1], cache[m][2]) if ok_prev else (v_w, q_w)
+            a, b = len(vb), n + tin                                   # input lengths
+            return (np.r_[_stretch(vb, a, b) * (a / b) ** 2, np.zeros(nmax - b)],   # same distance in n samples
+                    np.r_[_stretch(qb, a, b), np.zeros(nmax - b)])
 
         def feasible(n, checking=False):
             # ``max_nlps`` bounds the length search; the full-plant check's step-up (at most ``check_steps``
@@ -233,13 +263,10 @@ class EffectAwareDesigner:
             if not checking and len(solves) >= st.max_nlps and any(ok for ok, *_ in cache.values()):
                 raise _Budget()
             nlp, spread = self._nlp(n)
-            ok_prev = [m for m, (ok, *_ ) in cache.items() if ok]
-            m = min(ok_prev, key=lambda m: abs(m - n)) if ok_prev else n0
-            vb, qb = (cache[m][1], cache[m][2]) if ok_prev else (v_w, q_w)
-            v0 = np.r_[_stretch(vb, m, n) * (m / n) ** 2, np.zeros(nlp.N - n)]   # same distance in n samples
-            q0 = np.r_[_stretch(qb, m, n), np.zeros(nlp.N - n)]
-            imap = (_stretch(g_w, n0, n), _stretch(o_w, n0, n) * (n0 / n) ** 2)   # the plan, time-stretched
-            rec, v, q = nlp.solve(K, T0, n, self.imax, uh, x0, v0, q0, st.band_margin, st.current_margin,
+            v0, q0 = _warm_for(n, nlp.N)
+            b = n + tin                                   # the plan, time-stretched
+            imap = (_stretch(g_w, m_w, b), _stretch(o_w, m_w, b) * (m_w / b) ** 2)
+            rec, v, q = nlp.solve(K, T0, n, self.imax, uh, x0, v0, q0, st.band_margin, st.current_margin, input_tail=tin,
                                   input_map=imap)
             solves.append(rec)
             # an Ipopt failure or time-out at one length shows nothing about it: that length is not shown
@@ -252,7 +279,7 @@ class EffectAwareDesigner:
                 f"current slack {rec.slack:.2g}, guard excess {rec.guard_excess:.2g} band")
             good = rec.success and rec.residual <= st.band_margin * (1 + 1e-6) and rec.slack <= st.slack_tol
             res = rec.residual if rec.slack <= st.slack_tol else max(rec.residual, st.band_margin * (1 + rec.slack))
-            cache[n] = (good, v[:n], q[:n], res)
+            cache[n] = (good, v[:n + tin], q[:n + tin], res)
             return good
 
         # the linear design, accepted on the full plant by the same rule (_accept: the length from which it
@@ -377,8 +404,8 @@ class EffectAwareDesigner:
         return lin, comp, imap
 
     def _profile(self, v, q, K, T0, n, lin: DesignResult, solves) -> Profile:
-        u = self.imax * np.asarray(v[:n], float)
-        r = K + abs(K) * np.asarray(q[:n], float)
+        u = self.imax * np.asarray(v[:n + self.tin], float)      # input_tail samples past the settle sample
+        r = K + abs(K) * np.asarray(q[:n + self.tin], float)
         meta = {"plant_hash": self.plant.hash(), "controller_hash": self.controller.hash(),
                 "design_objective": "min_settle/nlp", "solver": "ipopt", "reference": "free",
                 "start_track": T0, "direction": "outward" if K > 0 else "inward",
@@ -390,4 +417,4 @@ class EffectAwareDesigner:
         out = [e.name for e in self.plant.effects if e.kind == "output"]
         if out:
             meta["effects_not_in_design"] = ";".join(out)
-        return Profile(np.r_[u, 0.0], np.r_[r, K], self.fs, K, self.imax, self.settle, "optimal-nlp", n, meta)
+        return Profile(np.r_[u, 0.0], np.r_[r, K], self.fs, K, self.imax, self.settle, "optimal-nlp", len(u), meta)

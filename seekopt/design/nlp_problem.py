@@ -26,7 +26,7 @@ variable O(1): states scaled by their warm-start excursion, currents in Imax, PE
                                                                   rows on the nominal linear loop, applied to the
                                                                   force the feedforward delivers: g, o the input
                                                                   map linearised along the plan, e.g. g = Kt(x))
-          v = u_ff / Imax in [-1, 1], q = (r - K) / |K| in [-2, 2], both 0 for k >= N (rest at K)
+          v = u_ff / Imax in [-1, 1], q = (r - K) / |K| in [-2, 2], both 0 for k >= N + input_tail (rest at K; the band from N)
 
 The plant is driven by the current variables ``i``, so the effects' curvature couples only the
 head's position, velocity and the current: the exact Hessian is sparse and cheap.  ``N``, the
@@ -402,20 +402,24 @@ class SeekNLP:
         return X, (np.r_[np.asarray(Y).ravel(), yH] - T0 - K) / self.band, np.asarray(I)
 
     def solve(self, K: float, T0: float, nseek: int, imax: float, uh: float, x0: np.ndarray,
-              v0: np.ndarray, q0: np.ndarray, beta: float, gamma: float, input_map=None):
-        """Solve for a seek of ``K`` tracks from ``T0`` in ``nseek`` samples from ``v0, q0`` (scaled
+              v0: np.ndarray, q0: np.ndarray, beta: float, gamma: float, input_map=None, input_tail: int = 0):
+        """Solve for a seek of ``K`` tracks from ``T0`` settling in ``nseek`` samples from ``v0, q0`` (scaled
         feedforward and reference, length ``nmax``); ``input_map``: ``(gain, offset [A])`` of length
-        ``nmax`` for the guard (default: 1, 0 -- the command is the force).  Returns ``(NLPSolve, v, q)``; ``NLPSolve.residual`` is ``t*`` [band]."""
+        ``nmax`` for the guard (default: 1, 0 -- the command is the force).  ``input_tail``: samples the
+        feedforward and reference may go on after ``nseek`` (the linear designer's ``input_tail``, the
+        problem's ``input_tail_s``: the band holds from ``nseek``, rest at ``K`` from ``nseek + input_tail``).
+        Returns ``(NLPSolve, v, q)``; ``NLPSolve.residual`` is ``t*`` [band]."""
         N, H, st = self.N, self.H, self.settings
-        if not 0 < nseek <= N:
-            raise ValueError(f"seek length {nseek} outside 1..{N}")
-        on = (np.arange(N) < nseek).astype(float)
+        n_in = int(nseek) + int(input_tail)
+        if not (0 < nseek and n_in <= N):
+            raise ValueError(f"seek length {nseek} + input tail {input_tail} outside 1..{N}")
+        on = (np.arange(N) < n_in).astype(float)
         v0, q0 = on * np.clip(v0[:N], -1, 1), on * np.clip(q0[:N], -2, 2)
         ne = H + 1
         w = np.zeros(ne); w[nseek:] = st.w_e / (ne - nseek)
         p = np.r_[K, abs(K), T0, imax, uh, x0, w]
         _, e0, _ = self.rollout(x0, v0, q0, K, T0, imax, uh)
-        knots = correction_knots(nseek, st)
+        knots = correction_knots(n_in, st)
         B = Bv = hat_basis(knots, N, self.nb)
         live = len(knots)
         gi, oi = (np.ones(N), np.zeros(N)) if input_map is None else \
