@@ -471,7 +471,8 @@ def test_design_scraping_the_band_past_short_rows_is_not_accepted(ctrl):
 
     def recording(plant, controller, prof, start, **kw):
         m, sim = real(plant, controller, prof, start, **kw)
-        plays.append((prof.kind, prof.seek_samples, m, _held(sim, prof.seek_samples, des.accept_tail)))
+        n = int(prof.meta.get("design_settle_samples", prof.seek_samples))     # the settle sample, not the input's end
+        plays.append((prof.kind, n, m, _held(sim, n, des.accept_tail)))
         return m, sim
     nlpmod.play_seek, orig = recording, nlpmod.play_seek
     try:
