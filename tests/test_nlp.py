@@ -278,6 +278,10 @@ def test_cli_nominal_design_on_torque_constant_drive(tmp_path, capsys, ctrl):
     assert prof.meta["start_track"] == "12010.0" and prof.meta["direction"] == "inward"
     assert int(prof.meta["ipopt_iterations"]) > 0 and float(prof.meta["ipopt_time_s"]) > 0
     assert "torque_constant_variation" in prof.meta["effects_in_design"]
+    # the input runs the linear designer's input tail past the settle sample (SeekProblem.input_tail_s)
+    from seekopt.design.problem import SeekProblem
+    tin = round(SeekProblem(p.linear_part(), ctrl, IMAX).input_tail_s * ctrl.sample_rate_hz)
+    assert tin > 0 and prof.seek_samples == int(prof.meta["design_settle_samples"]) + tin
     m, sim = play_seek(p, ctrl, prof, 12010.0)
     assert m.peak_current_a <= IMAX * (1 + 1e-9) and m.settled
     from seekopt.design.ocp import SeekDesigner
@@ -613,3 +617,22 @@ def test_nlp_model_of_a_fine_bias_table_is_within_a_hundredth_of_the_band(ctrl):
         x, h, xc, y, _ = (np.asarray(v, float).ravel() for v in step(x, h, xc, u[k], r[k], k / fs))
         err = max(err, abs(y[0] - sim.true_position_track[k]))
     assert err <= 0.01 * 0.1, err
+
+
+def test_kt_scaled_changes_the_torque_constant_not_the_forces():
+    """``kt_scaled(plant, f)``: k0 x f, every current-equivalent force / f (plant bias, the bias table,
+    friction), so the hold current is the plant's / f and the force k0 x bias stays; Kt(x) and modes kept."""
+    from seekopt.design.feasibility import kt_scaled
+    p = _plant(TorqueConstantVariation([0.2], 30000.0, 30000.0), PositionBias([0.0, 60000.0], [-0.01, 0.02]),
+               Friction(0.001, 1e-6))
+    q = kt_scaled(p, 0.95)
+    assert q.k0 == pytest.approx(0.95 * p.k0) and q.bias_a == pytest.approx(p.bias_a / 0.95)
+    fr = [e for e in q.effects if e.name == "friction"][0]
+    assert fr.coulomb_a == pytest.approx(0.001 / 0.95) and fr.viscous_a_per_tps == pytest.approx(1e-6 / 0.95)
+    assert [e.to_dict() for e in q.effects if e.kind == "input"] == [e.to_dict() for e in p.effects if e.kind == "input"]
+    assert [m.to_dict() for m in q.modes] == [m.to_dict() for m in p.modes]
+    dt = 1 / 52800
+    for x in (5000.0, 31000.0):
+        assert hold_current(q, x, dt) == pytest.approx(hold_current(p, x, dt) / 0.95, rel=1e-9)
+    with pytest.raises(ValueError):
+        kt_scaled(p, 0.0)
