@@ -226,11 +226,14 @@ class EffectAwareDesigner:
         # started from it at other lengths stopped at residuals that rose with the length
         m_w = int(warm.profile.seek_samples)
         v_w, q_w = comp.current_a[:m_w] / self.imax, (warm.profile.reference_track[:m_w] - K) / abs(K)
+        g_w, o_w = g_w[:m_w], o_w[:m_w]
         solves: list = []
+        imaps: dict = {}                 # the guard's input map (gain, offset) each length's NLP used
         cache: dict = {}
 
         def _warm_for(n, nmax):
-            """The NLP's starting feedforward and reference for a seek of ``n`` samples (length ``nmax``).
+            """The NLP's starting feedforward and reference for a seek of ``n`` samples (length ``nmax``), and
+            the input map ``(gain, offset)`` along it for the guard rows.
 
             A shorter seek's NLP answer at rest from ``m < n`` on is a seek of ``n`` samples as it is, with the
             same worst residual after ``n`` or less: padded with rest, the best of them (lowest residual) starts
@@ -242,14 +245,17 @@ class EffectAwareDesigner:
             below = [m for m, (_, _, _, res) in cache.items() if m < n and math.isfinite(res)]
             if below:
                 m = min(below, key=lambda m: (cache[m][3], -m))
+                g, o = imaps[m]            # and its guard's input map, padded at rest: the same guard rows
                 return (np.r_[cache[m][1], np.zeros(nmax - len(cache[m][1]))],
-                        np.r_[cache[m][2], np.zeros(nmax - len(cache[m][2]))])
+                        np.r_[cache[m][2], np.zeros(nmax - len(cache[m][2]))],
+                        (np.r_[g, np.ones(n + tin - len(g))], np.r_[o, np.zeros(n + tin - len(o))]))
             ok_prev = [m for m, (ok, *_ ) in cache.items() if ok]
             m = min(ok_prev, key=lambda m: abs(m - n)) if ok_prev else n0
-            vb, qb = (cache[m][1], cache[m][2]) if ok_prev else (v_w, q_w)
+            vb, qb, (g, o) = (cache[m][1], cache[m][2], imaps[m]) if ok_prev else (v_w, q_w, (g_w, o_w))
             a, b = len(vb), n + tin                                   # input lengths
             return (np.r_[_stretch(vb, a, b) * (a / b) ** 2, np.zeros(nmax - b)],   # same distance in n samples
-                    np.r_[_stretch(qb, a, b), np.zeros(nmax - b)])
+                    np.r_[_stretch(qb, a, b), np.zeros(nmax - b)],
+                    (_stretch(g, len(g), b), _stretch(o, len(g), b) * (len(g) / b) ** 2))   # the plan, time-stretched
 
         def feasible(n, checking=False):
             # ``max_nlps`` bounds the length search; the full-plant check's step-up (at most ``check_steps``
@@ -263,9 +269,8 @@ class EffectAwareDesigner:
             if not checking and len(solves) >= st.max_nlps and any(ok for ok, *_ in cache.values()):
                 raise _Budget()
             nlp, spread = self._nlp(n)
-            v0, q0 = _warm_for(n, nlp.N)
-            b = n + tin                                   # the plan, time-stretched
-            imap = (_stretch(g_w, m_w, b), _stretch(o_w, m_w, b) * (m_w / b) ** 2)
+            v0, q0, imap = _warm_for(n, nlp.N)
+            imaps[n] = imap
             rec, v, q = nlp.solve(K, T0, n, self.imax, uh, x0, v0, q0, st.band_margin, st.current_margin, input_tail=tin,
                                   input_map=imap)
             solves.append(rec)
