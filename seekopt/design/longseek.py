@@ -60,6 +60,7 @@ from identification.model.plant import ModalPlant
 
 from seekopt.design import guard as _guard
 from seekopt.design.predict import set_loop_maps
+from seekopt.design.accel_step import AccelStep, AccelStepQP, plan_seek
 from seekopt.design.search import bisect_length
 from seekopt.design.velocity_step import StepQP, VelocityStep
 
@@ -198,6 +199,7 @@ class LongSeekDesigner:
         self.tail = p.band_tail_samples()
         self._short = short_designer
         self._steps: dict = {}
+        self._accel: AccelStep | None = None
         self._maps, self._maps_h = None, 0
         self._nominal = None
 
@@ -302,6 +304,81 @@ class LongSeekDesigner:
             m_ok = m
         return int(S), int(m_ok)
 
+    # ------------------------------------------------------------------ the acceleration step
+    def _lim(self) -> float:
+        """The seek's current limit without the hold, ``gamma Imax - |bias|`` [A]."""
+        return self.gamma * self.imax - abs(self.plant.bias_a)
+
+    def accel_step(self) -> AccelStep:
+        """The shortest acceleration step (:mod:`seekopt.design.accel_step`) on the problem's set, designed
+        once (one bisection of small QPs) and kept: every seek from :meth:`long_from_track` on is built
+        from it.  ``I0 = 0.98 lim / max(1, max_i k0 / k0_i)`` so that every plant's steady current is within
+        ``lim``."""
+        if self._accel is not None:
+            return self._accel
+        from seekopt.design.metrics import settle_index
+        from seekopt.design.qp import LoopMaps
+        t0 = time.process_time()
+        lim = self._lim()
+        k0s = [float(q.k0) for q in self.plants]
+        i0 = 0.98 * lim / max(1.0, max(self.plant.k0 / k for k in k0s))
+        lo, nmax, best, qp, n_solves = 1, 48, None, None, 0
+        while nmax <= 512:
+            H = nmax + self.tail
+            qp = AccelStepQP(self._loop_maps(H), k0s, nmax, H, self.plant.k0, self.fs,
+                             self.plant.total_delay_s * self.fs, self.imax, i0, self.settle, lo, self.problem.solver)
+            sol = qp.solve(nmax, self.beta, lim); n_solves += 1
+            if sol.success:
+                best = sol
+                break
+            lo, nmax = nmax, int(math.ceil(1.5 * nmax))
+        if best is None:
+            raise LongSeekError("no acceleration step within 512 samples")
+        solves = []
+
+        def probe(n, warm=None, confirm=True):     # the step QP decides on the whole problem
+            solves.append(n)
+            return qp.solve(n, self.beta, lim, x0=warm)
+        hi, best = bisect_length(probe, lo, nmax, best, lambda n: False)
+        n_solves += len(solves)
+        u, off, delta = qp.unpack(best.x, hi)
+        st = AccelStep(u, i0, off, delta, qp.c, qp.delay, self.fs,
+                       meta={"design_samples": hi, "qp_solves": n_solves})
+        Hc = hi + 4 * self.tail        # the nominal linear loop: error and currents until they die out
+        if self._nominal is None or self._nominal.horizon < Hc:
+            self._nominal = LoopMaps(self.plant, self.controller, 2 * Hc)
+        mp = self._nominal
+        uu, rr = st.extended(Hc)
+        e = np.convolve(mp.y_u[:Hc], uu)[:Hc] + np.convolve(mp.y_r[:Hc], rr)[:Hc] - rr
+        if np.max(np.abs(e[-self.tail:])) > 0.01 * self.settle:
+            raise LongSeekError(f"acceleration step: the loop has not caught the parabola {Hc} samples later")
+        st.error_track = np.r_[e, 0.0]
+        st.current_sub_a = np.stack([np.convolve(mp.i_u[:Hc, l], uu)[:Hc] + np.convolve(mp.i_r[:Hc, l], rr)[:Hc]
+                                     for l in range(self.L)], axis=1)
+        st.settle_samples = int(max(settle_index(e, self.settle) or 0, hi))
+        st.meta["design_cpu_s"] = time.process_time() - t0
+        self._accel = st
+        return st
+
+    def n_floor(self) -> int:
+        """Fewest samples at ``I0`` of a built seek: the step's length and the quiet rows' delay (32)."""
+        return max(self.accel_step().n, 32)
+
+    def long_from_track(self) -> float:
+        """Shortest seek built from the acceleration step: ``c I0 n_floor^2`` [track] (``n = m = n_floor``)."""
+        return self.accel_step().accel_track * self.n_floor() ** 2
+
+    def _is_long(self, K: float) -> bool:
+        """The dispatch rule (module notes): from :meth:`long_from_track` on (cheap test first: below
+        ``c lim 32^2`` no step is designed)."""
+        if abs(K) < self.plant.k0 / self.fs ** 2 * self._lim() * 32 ** 2:
+            return False
+        return abs(K) >= self.long_from_track()
+
+    def _n_vmax(self) -> float:
+        v = self.spec.vmax_track_s
+        return math.inf if v is None else v / self.fs / self.accel_step().accel_track
+
     # ------------------------------------------------------------------ seeks
     def needs_coast(self, tracks: float) -> bool:
         """True when a velocity limit is set and the seek is long enough to coast at it."""
@@ -344,8 +421,9 @@ class LongSeekDesigner:
         if self.spec.stroke_track is not None and abs(K) > self.spec.stroke_track:
             raise LongSeekError(f"seek of {K:g} tracks is longer than the stroke ({self.spec.stroke_track:g} tracks)")
         v = self.spec.vmax_track_s
-        if v is None or abs(K) < 0.9 * v * v / (self.plant.k0 * self.imax):
-            self.short_designer().check_seek(K)
+        if abs(K) < self.plant.k0 / self.fs ** 2 * self._lim() * 32 ** 2 and (
+                v is None or abs(K) < 0.9 * v * v / (self.plant.k0 * self.imax)):
+            self.short_designer().check_seek(K)      # only the rest-to-rest designer can take it
         return K
 
     def design(self, tracks: float):
@@ -360,7 +438,12 @@ class LongSeekDesigner:
         K = self.check_seek(tracks)
         t0 = time.process_time()
         vmax = self.spec.vmax_track_s
-        if not self.needs_coast(K):
+        coast = self.needs_coast(K)
+        if not coast and self._is_long(K):
+            plan = plan_seek(self.accel_step(), K, self.n_floor(), self._n_vmax(), self.settle)
+            if plan is not None:
+                return self._design_accel(K, *plan, t0)
+        if not coast:
             res = self.short_designer().design(K)
             if vmax is None:
                 return res
@@ -387,6 +470,38 @@ class LongSeekDesigner:
         return DesignResult(prof, metrics, "verified", time.process_time() - t0, self.solver,
                             "long_seek", settle_samples=m + step.settle_samples,
                             n_solves=int(step.meta["qp_solves"]))
+
+
+    def _design_accel(self, K: float, n: int, m: int, k_pred: int, t0: float):
+        """The seek of ``K`` tracks from four acceleration steps (module notes), verified by simulation."""
+        from seekopt.design.designer import DesignError, DesignResult
+        from seekopt.design.metrics import evaluate_profile
+        from seekopt.design.profiles import Profile
+        solves0 = 0 if self._accel is not None and "counted" in self._accel.meta else None
+        st = self.accel_step()
+        u, r, s = st.compose(K, n, m)
+        vpk = rigid_peak_velocity(u, self.plant.k0, self.fs)
+        vmax = self.spec.vmax_track_s
+        if vmax is not None and vpk > vmax * (1 + 1e-9):
+            raise DesignError(f"long seek of {K:g} tracks: rigid velocity {vpk:.4g} track/s above vmax")
+        meta = {"plant_hash": self.plant.hash(), "controller_hash": self.controller.hash(),
+                "design_objective": "long_seek/accelerate-coast-arrive (acceleration steps)",
+                "accel_samples": n, "coast_samples": m - n, "coast_velocity_track_s": vpk, "vmax_track_s": vmax,
+                "step_samples": st.n, "robust": self.robust.to_string() if self.robust else "none",
+                "design_settle_samples": k_pred, "peak_rigid_velocity_track_s": vpk}
+        prof = Profile(np.r_[u, 0.0], np.r_[r, K], self.fs, K, self.imax, self.settle, "long_seek",
+                       int(np.max(np.nonzero(u)[0]) + 1), meta)
+        metrics = evaluate_profile(self.plant, self.controller, prof, settle=self.settle)
+        if not metrics.peak_current_a <= self.imax * (1 + 1e-9):
+            raise DesignError(f"long seek of {K:g} tracks exceeds Imax in simulation ({metrics.peak_current_a:.4g} A)")
+        if not metrics.settle_time_s * self.fs <= k_pred + 1 + 1e-9:
+            raise DesignError(f"long seek of {K:g} tracks does not settle by sample {k_pred} "
+                              f"({metrics.settle_time_s * self.fs:.1f})")
+        prof.meta["design_status"] = "verified"
+        n_solves = 0 if solves0 == 0 else int(st.meta["qp_solves"])
+        st.meta["counted"] = True
+        return DesignResult(prof, metrics, "verified", time.process_time() - t0, self.solver,
+                            "long_seek", settle_samples=k_pred, n_solves=n_solves)
 
 
 def rigid_peak_velocity(current_a, k0: float, fs: float) -> float:
