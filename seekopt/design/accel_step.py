@@ -21,8 +21,9 @@ the step settles, the three older terms are quiet).  So one QP per designer serv
 :class:`AccelStepQP` is the condensed QP on the set's closed-loop maps (:func:`seekopt.design.predict.set_loop_maps`),
 built for at most ``nmax`` samples and solved per ``N`` through the problem's solver chain:
 
-* settle band: ``|e_i(k)| <= beta band`` for ``k >= N`` on every plant ``i``; ``<= quiet beta band`` from
-  ``N + quiet_after`` on (the older terms of the sum);
+* settle band: ``|e_i(k)| <= beta band`` for ``k >= N`` on every plant ``i``; on the nominal plant
+  ``<= quiet beta band`` from ``N + quiet_after`` on (the older terms of the sum; the seek is verified on
+  the design plant by simulation, the other plants of the set carry the step's band only);
 * total current (every sub-step, every plant): within ``[(S_i - lim) / 2, (S_i + lim) / 2]`` with ``S_i =
   I0 k0 / k0_i`` the plant's steady current and ``lim = gamma Imax - |bias|``: a transition, its mirror and
   the doubled one of a seek without coast (``n = m``) then stay within ``lim``;
@@ -194,7 +195,7 @@ class AccelStepQP:
         lba, uba = np.full(m, -np.inf), np.full(m, np.inf)
         pes = (self.kind == "pes") & (self.sample >= nseek)
         lba[pes], uba[pes] = -beta, beta
-        far = pes & (self.sample >= nseek + self.quiet_after)
+        far = pes & (self.sample >= nseek + self.quiet_after) & (self.plant == 0)
         lba[far], uba[far] = -self.quiet * beta, self.quiet * beta
         cur = self.kind == "cur"
         S = self.steady[self.plant[cur]]
