@@ -68,6 +68,8 @@ class AccelStep:
         First sample from which the nominal linear loop's ``|e_J| <= band`` for good.
     error_track : ndarray
         ``e_J`` [track] on the nominal linear loop over a horizon in which it has died out (zero after).
+    set_error_track : ndarray
+        ``(plants - 1, horizon)``: ``e_J`` on the other plants of the design's set (calibrated maps).
     current_sub_a : ndarray
         Total sub-step currents ``(horizon, L)`` [A] on the nominal linear loop (``i0`` times the steady
         ratio after).
@@ -83,6 +85,7 @@ class AccelStep:
     settle_samples: int = 0
     error_track: np.ndarray = field(default_factory=lambda: np.zeros(0))
     current_sub_a: np.ndarray = field(default_factory=lambda: np.zeros((0, 1)))
+    set_error_track: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     meta: dict = field(default_factory=dict)
 
     @property
@@ -227,11 +230,12 @@ class AccelStepQP:
 
 
 def plan_seek(step: AccelStep, tracks: float, n_lo: int, n_vmax: float, band: float, spread: int = 3):
-    """``(n, m, predicted settle sample)`` of the seek of ``tracks`` (the rule of
-    :mod:`seekopt.design.longseek`): ``n <= m``, ``n >= n_lo``, ``n <= n_vmax`` (the velocity limit),
-    ``s c I0 n m = |K|`` with ``s <= 1``; among ``n`` within ``spread`` of the bang-bang ``sqrt(|K| / (c I0))``
-    (or ``n_vmax`` when that is lower) the one whose four-term error on the nominal linear loop settles
-    first (ties: the earlier last transition ``m + n``).  None when no ``n`` qualifies."""
+    """``(n, m, predicted nominal settle sample, predicted worst settle sample over the set)`` of the seek of
+    ``tracks`` (the rule of :mod:`seekopt.design.longseek`): ``n <= m``, ``n >= n_lo``, ``n <= n_vmax`` (the
+    velocity limit), ``s c I0 n m = |K|`` with ``s <= 1``; among ``n`` within ``spread`` of the bang-bang
+    ``sqrt(|K| / (c I0))`` (or ``n_vmax`` when that is lower) the one whose four-term error on the linear
+    loop settles first on every plant of the set (ties: the earlier nominal settle, then the earlier last
+    transition ``m + n``).  None when no ``n`` qualifies."""
     from seekopt.design.metrics import settle_index
     P = abs(tracks) / step.accel_track
     top = int(math.floor(min(math.sqrt(P), n_vmax) + 1e-9))
@@ -245,9 +249,11 @@ def plan_seek(step: AccelStep, tracks: float, n_lo: int, n_vmax: float, band: fl
         s = P / (n * m)
         length = m + n + len(step.error_track)
         k = settle_index(s * step.four_term(step.error_track, n, m, length), band)
-        if k is None:
+        ks = [settle_index(s * step.four_term(e, n, m, length), band) for e in step.set_error_track]
+        if k is None or None in ks:
             continue
-        key = (k, m + n)
+        kw = max([k] + ks)
+        key = (kw, k, m + n)
         if best is None or key < best[0]:
-            best = (key, n, m, k)
+            best = (key, n, m, k, kw)
     return None if best is None else best[1:]

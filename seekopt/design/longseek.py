@@ -68,6 +68,11 @@ __all__ = ["LongSeekSpec", "VelocityStep", "LongSeekDesigner", "LongSeekError", 
            "stroke_from_plant", "t_accel_coast_decel"]
 
 
+#: The acceleration step's constant current as a fraction of the seek's current limit ``gamma Imax - |bias|``
+#: (the rest is the feedback's room on the way).
+I0_FRACTION = 0.98
+
+
 class LongSeekError(ValueError):
     """Bad long-seek settings (one-line message)."""
 
@@ -312,7 +317,7 @@ class LongSeekDesigner:
     def accel_step(self) -> AccelStep:
         """The shortest acceleration step (:mod:`seekopt.design.accel_step`) on the problem's set, designed
         once (one bisection of small QPs) and kept: every seek from :meth:`long_from_track` on is built
-        from it.  ``I0 = 0.98 lim / max(1, max_i k0 / k0_i)`` so that every plant's steady current is within
+        from it.  ``I0 = I0_FRACTION lim / max(1, max_i k0 / k0_i)`` so that every plant's steady current is within
         ``lim``."""
         if self._accel is not None:
             return self._accel
@@ -321,7 +326,7 @@ class LongSeekDesigner:
         t0 = time.process_time()
         lim = self._lim()
         k0s = [float(q.k0) for q in self.plants]
-        i0 = 0.98 * lim / max(1.0, max(self.plant.k0 / k for k in k0s))
+        i0 = I0_FRACTION * lim / max(1.0, max(self.plant.k0 / k for k in k0s))
         lo, nmax, best, qp, n_solves = 1, 48, None, None, 0
         while nmax <= 512:
             H = nmax + self.tail
@@ -353,6 +358,10 @@ class LongSeekDesigner:
         if np.max(np.abs(e[-self.tail:])) > 0.01 * self.settle:
             raise LongSeekError(f"acceleration step: the loop has not caught the parabola {Hc} samples later")
         st.error_track = np.r_[e, 0.0]
+        if len(self.plants) > 1:      # every plant of the set (calibrated maps), for the plan's worst case
+            es = [np.convolve(q.y_u[:Hc], uu)[:Hc] + np.convolve(q.y_r[:Hc], rr)[:Hc] - rr
+                  for q in self._loop_maps(Hc)[1:]]
+            st.set_error_track = np.vstack([np.r_[x, 0.0] for x in es])
         st.current_sub_a = np.stack([np.convolve(mp.i_u[:Hc, l], uu)[:Hc] + np.convolve(mp.i_r[:Hc, l], rr)[:Hc]
                                      for l in range(self.L)], axis=1)
         st.settle_samples = int(max(settle_index(e, self.settle) or 0, hi))
@@ -371,9 +380,13 @@ class LongSeekDesigner:
     def _is_long(self, K: float) -> bool:
         """The dispatch rule (module notes): from :meth:`long_from_track` on (cheap test first: below
         ``c lim 32^2`` no step is designed)."""
-        if abs(K) < self.plant.k0 / self.fs ** 2 * self._lim() * 32 ** 2:
+        if abs(K) < self._long_lower_bound():
             return False
         return abs(K) >= self.long_from_track()
+
+    def _long_lower_bound(self) -> float:
+        """``c I0_FRACTION lim 32^2`` [track]: no shorter seek is built from the step (``I0 <= I0_FRACTION lim``)."""
+        return self.plant.k0 / self.fs ** 2 * I0_FRACTION * self._lim() * 32 ** 2
 
     def _n_vmax(self) -> float:
         v = self.spec.vmax_track_s
@@ -421,7 +434,7 @@ class LongSeekDesigner:
         if self.spec.stroke_track is not None and abs(K) > self.spec.stroke_track:
             raise LongSeekError(f"seek of {K:g} tracks is longer than the stroke ({self.spec.stroke_track:g} tracks)")
         v = self.spec.vmax_track_s
-        if abs(K) < self.plant.k0 / self.fs ** 2 * self._lim() * 32 ** 2 and (
+        if abs(K) < self._long_lower_bound() and (
                 v is None or abs(K) < 0.9 * v * v / (self.plant.k0 * self.imax)):
             self.short_designer().check_seek(K)      # only the rest-to-rest designer can take it
         return K
@@ -439,10 +452,11 @@ class LongSeekDesigner:
         t0 = time.process_time()
         vmax = self.spec.vmax_track_s
         coast = self.needs_coast(K)
+        fresh = self._accel is None          # the step's QPs count for the design that builds it
         if not coast and self._is_long(K):
             plan = plan_seek(self.accel_step(), K, self.n_floor(), self._n_vmax(), self.settle)
             if plan is not None:
-                return self._design_accel(K, *plan, t0)
+                return self._design_accel(K, *plan, t0=t0, fresh=fresh)
         if not coast:
             res = self.short_designer().design(K)
             if vmax is None:
@@ -472,12 +486,11 @@ class LongSeekDesigner:
                             n_solves=int(step.meta["qp_solves"]))
 
 
-    def _design_accel(self, K: float, n: int, m: int, k_pred: int, t0: float):
+    def _design_accel(self, K: float, n: int, m: int, k_pred: int, k_set: int, t0: float, fresh: bool):
         """The seek of ``K`` tracks from four acceleration steps (module notes), verified by simulation."""
         from seekopt.design.designer import DesignError, DesignResult
         from seekopt.design.metrics import evaluate_profile
         from seekopt.design.profiles import Profile
-        solves0 = 0 if self._accel is not None and "counted" in self._accel.meta else None
         st = self.accel_step()
         u, r, s = st.compose(K, n, m)
         vpk = rigid_peak_velocity(u, self.plant.k0, self.fs)
@@ -488,7 +501,8 @@ class LongSeekDesigner:
                 "design_objective": "long_seek/accelerate-coast-arrive (acceleration steps)",
                 "accel_samples": n, "coast_samples": m - n, "coast_velocity_track_s": vpk, "vmax_track_s": vmax,
                 "step_samples": st.n, "robust": self.robust.to_string() if self.robust else "none",
-                "design_settle_samples": k_pred, "peak_rigid_velocity_track_s": vpk}
+                "design_settle_samples": k_pred, "set_settle_samples_predicted": k_set,
+                "peak_rigid_velocity_track_s": vpk}
         prof = Profile(np.r_[u, 0.0], np.r_[r, K], self.fs, K, self.imax, self.settle, "long_seek",
                        int(np.max(np.nonzero(u)[0]) + 1), meta)
         metrics = evaluate_profile(self.plant, self.controller, prof, settle=self.settle)
@@ -498,10 +512,9 @@ class LongSeekDesigner:
             raise DesignError(f"long seek of {K:g} tracks does not settle by sample {k_pred} "
                               f"({metrics.settle_time_s * self.fs:.1f})")
         prof.meta["design_status"] = "verified"
-        n_solves = 0 if solves0 == 0 else int(st.meta["qp_solves"])
-        st.meta["counted"] = True
+        n_solves = int(st.meta["qp_solves"]) if fresh else 0
         return DesignResult(prof, metrics, "verified", time.process_time() - t0, self.solver,
-                            "long_seek", settle_samples=k_pred, n_solves=n_solves)
+                            "long_seek", settle_samples=k_pred, n_solves=n_solves, set_settle_samples=k_set)
 
 
 def rigid_peak_velocity(current_a, k0: float, fs: float) -> float:
