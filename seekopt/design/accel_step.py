@@ -29,8 +29,11 @@ built for at most ``nmax`` samples and solved per ``N`` through the problem's so
   the doubled one of a seek without coast (``n = m``) then stay within ``lim``;
 * feedforward within ``[(I0 - Imax) / 2, (I0 + Imax) / 2]`` (the doubled transition within ``Imax``).
 
-The unmodelled-mode guard is not a constraint here (a transition's residual is not a finite-horizon row of
-the guard); the seek's guard residual is reported by :func:`seekopt.design.guard.guard_report`.
+* the unmodelled-mode guard (:func:`seekopt.design.guard.design_guard_rows`) on the one-sample differences
+  ``i(k) - i(k-1)`` of the nominal sub-step currents (finite: the current settles at ``S``): a mode at
+  ``f`` keeps ``X(f) = dX(f) / (1 - e^{-j w})`` of a transition and a seek four of them, ``|z_seek| <=
+  4 |dX| / (2 sin(pi f / fs))``, so the rows are bounded by ``hf_tol 2 min_f sin(pi f / fs) / 4``.  The seek's
+  guard residual is measured after the design (:func:`seekopt.design.guard.guard_report`).
 """
 from __future__ import annotations
 
@@ -146,7 +149,7 @@ class AccelStepQP:
     """
 
     def __init__(self, maps, k0s, nmax, horizon, k0, fs, delay_samples, imax, i0, band, nlo, settings,
-                 rho=1e-2, rho_w=1e-3, quiet=0.1, quiet_after=32):
+                 rho=1e-2, rho_w=1e-3, quiet=0.1, quiet_after=32, hf=None):
         from seekopt.design.qp import pes_row_samples, toeplitz_rows
         from seekopt.design.solvers import SolverChain, dm
         t0 = time.perf_counter()
@@ -175,6 +178,15 @@ class AccelStepQP:
             a = np.hstack([imax * (Tiu[:, :N] + Tir @ Fv), Tir @ E, (Tir @ one)[:, None]])
             b = i0 * (Tiu[:, N:].sum(axis=1) + Tir @ Ff)
             blocks.append(a / imax); offs.append(b / imax); kinds += [("cur", i, int(k)) for k in np.repeat(rows, L)]
+        if hf is not None:      # guard rows on the one-sample differences of the nominal sub-step currents
+            G = np.asarray(hf, float)
+            GD = G.copy()
+            GD[:, :-L] -= G[:, L:]
+            rows = np.arange(H)
+            Tiu, Tir = toeplitz_rows(maps[0].i_u, rows, H), toeplitz_rows(maps[0].i_r, rows, H)
+            a = np.hstack([imax * GD @ (Tiu[:, :N] + Tir @ Fv), GD @ Tir @ E, (GD @ (Tir @ one))[:, None]])
+            b = i0 * GD @ (Tiu[:, N:].sum(axis=1) + Tir @ Ff)
+            blocks.append(a / band); offs.append(b / band); kinds += [("hf", 0, j) for j in range(G.shape[0])]
         A, self.b = np.vstack(blocks), np.concatenate(offs)
         self.A = A
         self.kind = np.array([k[0] for k in kinds]); self.sample = np.array([k[2] for k in kinds])
@@ -191,8 +203,9 @@ class AccelStepQP:
         self.violation_tol = float(settings.violation_tol)
         self.build_time_s = time.perf_counter() - t0
 
-    def solve(self, nseek: int, beta: float, lim_a: float, x0=None):
-        """The step of ``nseek`` samples (``lim_a``: the seek's current limit ``gamma Imax - |bias|`` [A])."""
+    def solve(self, nseek: int, beta: float, lim_a: float, hf_tol: float | None = None, x0=None):
+        """The step of ``nseek`` samples (``lim_a``: the seek's current limit ``gamma Imax - |bias|`` [A];
+        ``hf_tol``: bound of the guard rows on the current's one-sample differences, in bands)."""
         from seekopt.design.solvers import constraint_violation
         N, m, b = self.N, self.m, self.b
         lba, uba = np.full(m, -np.inf), np.full(m, np.inf)
@@ -203,6 +216,9 @@ class AccelStepQP:
         cur = self.kind == "cur"
         S = self.steady[self.plant[cur]]
         lba[cur], uba[cur] = 0.5 * (S - lim_a) / self.imax, 0.5 * (S + lim_a) / self.imax
+        hf = self.kind == "hf"
+        if hf_tol is not None:
+            lba[hf], uba[hf] = -hf_tol, hf_tol
         lba, uba = lba - b, uba - b
         tail = self._tail[self.sample[self._tail] >= nseek]
         At = self.A[tail]
