@@ -193,7 +193,7 @@ class AccelStepQP:
         self.plant = np.array([k[1] for k in kinds])
         nv = 2 * N + 1
         D = np.eye(N) - np.eye(N, k=-1)
-        P = np.zeros((nv, nv)); q = np.zeros(nv)
+        P = np.zeros((nv, nv))
         P[:N, :N] = 2 * rho * D.T @ D
         P[N:2 * N, N:2 * N] = 2 * rho_w * D.T @ D
         self._tail = np.nonzero((self.kind == "pes") & (self.plant == 0))[0]
