@@ -245,13 +245,16 @@ class AccelStepQP:
         return self.imax * x[:nseek], x[N:N + nseek] + x[-1], float(x[-1])
 
 
-def plan_seek(step: AccelStep, tracks: float, n_lo: int, n_vmax: float, band: float, spread: int = 3):
+def plan_seek(step: AccelStep, tracks: float, n_lo: int, n_vmax: float, band: float, spread: int = 3,
+              current_limit_a: float = math.inf):
     """``(n, m, predicted nominal settle sample, predicted worst settle sample over the set)`` of the seek of
     ``tracks`` (the rule of :mod:`seekopt.design.longseek`): ``n <= m``, ``n >= n_lo``, ``n <= n_vmax`` (the
     velocity limit), ``s c I0 n m = |K|`` with ``s <= 1``; among ``n`` within ``spread`` of the bang-bang
     ``sqrt(|K| / (c I0))`` (or ``n_vmax`` when that is lower) the one whose four-term error on the linear
     loop settles first on every plant of the set (ties: the earlier nominal settle, then the earlier last
-    transition ``m + n``).  None when no ``n`` qualifies."""
+    transition ``m + n``); with ``n`` shorter than the step the transitions overlap and the plan is kept only
+    if its nominal total current (:attr:`AccelStep.current_sub_a`, four terms) is within ``current_limit_a``.
+    None when no ``n`` qualifies."""
     from seekopt.design.metrics import settle_index
     P = abs(tracks) / step.accel_track
     top = int(math.floor(min(math.sqrt(P), n_vmax) + 1e-9))
@@ -264,6 +267,8 @@ def plan_seek(step: AccelStep, tracks: float, n_lo: int, n_vmax: float, band: fl
             continue
         s = P / (n * m)
         length = m + n + len(step.error_track)
+        if n < step.n and np.max(np.abs(s * step.four_term(step.current_sub_a, n, m, length))) > current_limit_a:
+            continue
         k = settle_index(s * step.four_term(step.error_track, n, m, length), band)
         ks = [settle_index(s * step.four_term(e, n, m, length), band) for e in step.set_error_track]
         if k is None or None in ks:

@@ -49,16 +49,18 @@ small QPs on the problem's set, kept) gives every such seek as four shifted copi
 
 1. with ``vmax`` and a seek long enough to coast at it (:meth:`~LongSeekDesigner.needs_coast`): the velocity
    step to ``vmax`` and its mirror (above);
-2. else, from ``long_from_track = c I0 n_floor^2`` tracks on (``n_floor = max(N_J, 32)`` samples at ``I0``,
-   ``N_J`` the acceleration step's length: the transitions do not overlap and the older terms are on the
-   step's quiet rows): the acceleration step with ``n <= m``, ``n`` within 3 of the bang-bang
+2. else, from ``long_from_track = c I0 n_floor^2`` tracks on (``n_floor = 32`` samples at ``I0``: the older
+   terms are on the step's quiet rows; below the step's length ``N_J`` the transitions overlap and a plan
+   is kept only if its nominal current is within ``(1 + gamma) / 2 Imax`` with the hold, as the velocity
+   step's compositions): the acceleration step with ``n <= m``, ``n`` within 3 of the bang-bang
    ``sqrt(K / (c I0))`` (capped at ``vmax / (fs c I0)``), the one whose four-term error settles first on
    every plant of the set (linear maps; ties: nominal settle, then ``m + n``); verified on the design plant
    by simulation (Imax, settled by the predicted sample);
 3. else the rest-to-rest QP (:class:`~seekopt.design.designer.SeekDesigner`), its peak velocity checked
    against ``vmax``.
 
-On the bundled drive ``long_from_track`` is 1627 tracks nominal (``N_J`` = 22) and 2542 robust (``N_J`` = 40).
+On the bundled drive ``long_from_track`` is 1627 tracks (``N_J`` = 30 nominal, 46 robust); when no plan
+near the bang-bang ``n`` settles on every plant (none measured), the rest-to-rest QP designs the seek.
 
 The velocity limit and the stroke from the plant's metadata: :mod:`seekopt.design.longseek_spec`.
 """
@@ -76,6 +78,10 @@ from seekopt.design.longseek_spec import (I0_FRACTION, LongSeekError, LongSeekSp
                                           t_accel_coast_decel, vmax_from_plant)
 from seekopt.design.search import bisect_length
 from seekopt.design.velocity_step import StepQP, VelocityStep
+
+#: The acceleration step's error bound on the nominal plant from 32 samples after the step, as a fraction
+#: of the band margin (:class:`~seekopt.design.accel_step.AccelStepQP` ``quiet``).
+ACCEL_QUIET = 0.1
 
 __all__ = ["LongSeekSpec", "VelocityStep", "AccelStep", "LongSeekDesigner", "LongSeekError", "vmax_from_plant",
            "stroke_from_plant", "t_accel_coast_decel", "I0_FRACTION"]
@@ -127,6 +133,7 @@ class LongSeekDesigner:
         self._short = short_designer
         self._steps: dict = {}
         self._accel: AccelStep | None = None
+        self.accel_quiet = ACCEL_QUIET
         self._maps, self._maps_h = None, 0
         self._nominal = None
 
@@ -260,7 +267,7 @@ class LongSeekDesigner:
                 hf_tol = self.hf_tol * 2 * float(np.min(np.abs(np.sin(np.pi * rows[1] / self.fs)))) / 4
             qp = AccelStepQP(maps, k0s, nmax, H, self.plant.k0, self.fs, self.plant.total_delay_s * self.fs,
                              self.imax, i0, self.settle, lo, self.problem.solver,
-                             hf=None if rows is None else rows[0])
+                             hf=None if rows is None else rows[0], quiet=self.accel_quiet)
             sol = qp.solve(nmax, self.beta, lim, hf_tol); n_solves += 1
             if sol.success:
                 best = sol
@@ -299,8 +306,9 @@ class LongSeekDesigner:
         return st
 
     def n_floor(self) -> int:
-        """Fewest samples at ``I0`` of a built seek: the step's length and the quiet rows' delay (32)."""
-        return max(self.accel_step().n, 32)
+        """Fewest samples at ``I0`` of a built seek: the quiet rows' delay (32 samples; shorter than the step,
+        the transitions overlap: :func:`~seekopt.design.accel_step.plan_seek` checks the current)."""
+        return 32
 
     def long_from_track(self) -> float:
         """Shortest seek built from the acceleration step: ``c I0 n_floor^2`` [track] (``n = m = n_floor``)."""
@@ -383,7 +391,8 @@ class LongSeekDesigner:
         coast = self.needs_coast(K)
         fresh = self._accel is None          # the step's QPs count for the design that builds it
         if not coast and self._is_long(K):
-            plan = plan_seek(self.accel_step(), K, self.n_floor(), self._n_vmax(), self.settle)
+            plan = plan_seek(self.accel_step(), K, self.n_floor(), self._n_vmax(), self.settle,
+                             current_limit_a=0.5 * (1 + self.gamma) * self.imax - abs(self.plant.bias_a))
             if plan is not None:
                 return self._design_accel(K, *plan, t0=t0, fresh=fresh)
         if not coast:
