@@ -379,8 +379,10 @@ class LongSeekDesigner:
     def design(self, tracks: float):
         """Design the seek of ``tracks`` tracks -> :class:`seekopt.design.designer.DesignResult`.
 
-        With a coast: the composition of the velocity step at ``vmax`` (module notes), verified by
-        simulation; without: the rest-to-rest designer, its rigid peak velocity checked against ``vmax``.
+        The dispatch rule of the module notes: a coast at ``vmax``: the velocity step at ``vmax`` and its
+        mirror; else from :meth:`long_from_track` on: four copies of the acceleration step; else (or when no
+        plan settles on every plant) the rest-to-rest designer, its rigid peak velocity checked against
+        ``vmax``.  Every long seek is verified by simulation on the design plant.
         """
         from seekopt.design.designer import DesignError, DesignResult
         from seekopt.design.metrics import evaluate_profile
