@@ -65,8 +65,9 @@ def cmd_design(args) -> int:
         raise UsageError(f"--tracks {args.tracks:g} is longer than the stroke ({spec.stroke_track:g} tracks)")
     try:
         designer = SeekDesigner(SeekProblem(plant, controller, args.imax, args.settle, robust=robust, family=family))
-        if spec.vmax_track_s is not None:   # long seeks coast at vmax (seekopt.design.longseek)
-            designer = LongSeekDesigner(designer.problem, spec, short_designer=designer)
+        # long seeks (with or without --vmax) are accelerate-coast-arrive, shorter ones rest-to-rest QPs
+        # (the dispatch rule of seekopt.design.longseek)
+        designer = LongSeekDesigner(designer.problem, spec, short_designer=designer)
         designer.check_seek(args.tracks)            # impossible seeks: before any QP is built
     except (ProblemError, LongSeekError) as exc:
         raise UsageError(f"{', '.join(names)}: {exc}") from None
