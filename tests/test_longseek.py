@@ -277,3 +277,16 @@ def test_cli_design_long_seek_without_vmax(tmp_path, plant, capsys):
     assert main(["design", "--plant", str(pj), "--tracks", "50000", "--imax", "0.3", "--robust", "none",
                  "-o", str(out)]) == 0
     assert "coasts" in capsys.readouterr().out and "kind: long_seek" in out.read_text()
+
+
+def test_rest_to_rest_up_to_keeps_the_qp_above_long_from_track(plant, ctrl, free):
+    """``rest_to_rest_up_to_track`` moves the dispatch: a seek just past ``long_from_track`` is designed
+    rest-to-rest when the user asks for it, and settles no later than the acceleration step's design."""
+    K = 1.02 * free.long_from_track()
+    r2r = LongSeekDesigner(plant, ctrl, IMAX, 0.1, None, LongSeekSpec(rest_to_rest_up_to_track=1.05 * K))
+    a, b = free.design(K), r2r.design(K)
+    assert a.profile.kind == "long_seek" and b.profile.kind == "optimal"
+    assert b.settle_samples <= a.settle_samples
+    assert LongSeekSpec.from_dict(r2r.spec.to_dict()) == r2r.spec
+    with pytest.raises(ValueError):
+        LongSeekSpec(rest_to_rest_up_to_track=-1.0)

@@ -55,7 +55,9 @@ small QPs on the problem's set, kept) gives every such seek as four shifted copi
    step's compositions): the acceleration step with ``n <= m``, ``n`` within 3 of the bang-bang
    ``sqrt(K / (c I0))`` (capped at ``vmax / (fs c I0)``), the one whose four-term error settles first on
    every plant of the set (linear maps; ties: nominal settle, then ``m + n``); verified on the design plant
-   by simulation (Imax, settled by the predicted sample);
+   by simulation (Imax, settled by the predicted sample); seeks up to ``LongSeekSpec.rest_to_rest_up_to_track``
+   (``--rest-to-rest-up-to``) stay with the rest-to-rest QP, which settles sooner at a cost that grows
+   with the length;
 3. else the rest-to-rest QP (:class:`~seekopt.design.designer.SeekDesigner`), its peak velocity checked
    against ``vmax``.
 
@@ -318,6 +320,9 @@ class LongSeekDesigner:
         """The dispatch rule (module notes): from :meth:`long_from_track` on (cheap test first: below
         ``c lim 32^2`` no step is designed)."""
         if abs(K) < self._long_lower_bound():
+            return False
+        r2r = self.spec.rest_to_rest_up_to_track
+        if r2r is not None and abs(K) <= r2r:
             return False
         return abs(K) >= self.long_from_track()
 
