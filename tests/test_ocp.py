@@ -484,6 +484,9 @@ def test_unstable_closed_loop_rejected_at_once(setup):
 
 
 def test_cli_design_early_errors_exit_2(tmp_path, capsys):
+    """Seeks longer than the stroke, a current limit that cannot hold the bias, an unstable loop: exit 2
+    with one line before any QP.  (Without a stroke any length designs: long seeks are built from the
+    acceleration step, seekopt.design.longseek.)"""
     from seekopt.app.cli import main
     from seekopt.drive.presets import default_truth_plant
     p = default_truth_plant()
@@ -491,7 +494,7 @@ def test_cli_design_early_errors_exit_2(tmp_path, capsys):
     p.to_json(good)
     p.copy(k0=p.k0 * 3).to_json(bad)
     out = tmp_path / "p.csv"
-    for args in (["--plant", str(good), "--tracks", "1e9", "--imax", "0.3"],
+    for args in (["--plant", str(good), "--tracks", "1e9", "--imax", "0.3", "--stroke", "1e6"],
                  ["--plant", str(good), "--tracks", "200", "--imax", "1e-7"],
                  ["--plant", str(bad), "--tracks", "200", "--imax", "0.3"]):
         assert main(["design", *args, "--robust", "none", "-o", str(out)]) == 2
