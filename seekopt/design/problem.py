@@ -201,6 +201,13 @@ class SeekProblem:
         (:func:`seekopt.design.guard.controller_notches`; None: not).
     guard_bands_hz : tuple
         Further guard bands ``(lo_hz, hi_hz)`` or ``(lo_hz, hi_hz, gain)``.
+    blind_pes_points : int
+        Minimum seek-settle designs: the PES a mode of the Nyquist guard band (gain ``hf_gain``) adds after
+        the settle sample, forced and free, is bounded on this many frequencies across the band
+        (:mod:`seekopt.design.blind_pes`; 0: not).
+    blind_pes_tol : float or None
+        That bound as a fraction of the settle band; None: ``1 - band_margin`` (the band above the design
+        band).  Rows off when it is not positive.
     check_robust : bool
         Also simulate each design on every plant of the robust set.
     input_tail_s : float
@@ -232,6 +239,8 @@ class SeekProblem:
     hf_tol: float = 0.1
     guard_notch_depth_db: float | None = 6.0
     guard_bands_hz: tuple = ()
+    blind_pes_points: int = 5
+    blind_pes_tol: float | None = None
     check_robust: bool = False
     input_tail_s: float = 3e-4
     nominal_first: bool = True
@@ -256,6 +265,9 @@ class SeekProblem:
         if self.hf_guard is not None:
             self.hf_guard = tuple(float(f) for f in self.hf_guard)
         self.guard_bands_hz = tuple(tuple(float(v) for v in b) for b in (self.guard_bands_hz or ()))
+        self.blind_pes_points = int(self.blind_pes_points)
+        if self.blind_pes_tol is not None:
+            self.blind_pes_tol = float(self.blind_pes_tol)
         self.tail_s = _positive("tail_s", self.tail_s)
         self.input_tail_s = float(self.input_tail_s)
         if not (math.isfinite(self.input_tail_s) and 0 <= self.input_tail_s < self.tail_s):
@@ -267,6 +279,14 @@ class SeekProblem:
     @property
     def sample_rate_hz(self) -> float:
         return float(self.controller.sample_rate_hz)
+
+    def blind_pes_bound(self) -> float | None:
+        """Bound of the blind-band mode's PES rows [fraction of the band] (:mod:`seekopt.design.blind_pes`),
+        None when the rows are off (no Nyquist band, no points, or a bound that is not positive)."""
+        tol = 1.0 if self.blind_pes_tol is None else self.blind_pes_tol
+        if not self.hf_guard or self.blind_pes_points <= 0 or not tol > 0:
+            return None
+        return float(tol)
 
     def band_tail_samples(self) -> int:
         """Samples after the seek carrying settle-band rows: :func:`band_tail_samples` of the nominal plant
