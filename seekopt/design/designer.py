@@ -115,6 +115,7 @@ class SeekDesigner:
         self.objective_kind = self.robust.objective if self.robust else "worst"
         self.ignored_effects = [e.name for e in p.plant.effects if e.kind != "structural"]
         self._maps, self._maps_h = None, 0
+        self._bpes, self._bpes_h = [], 0      # blind-band mode's PES maps (_blind_pes)
         self._qps: dict = {}
         self._ws: dict = {}             # working-set solver per structure
         self._history: dict = {}        # n_rigid -> designed settle samples (predicts the next length)
@@ -141,7 +142,7 @@ class SeekDesigner:
     def _blind_pes(self, horizon: int) -> list:
         """The blind-band mode's PES maps (:func:`seekopt.design.blind_pes.blind_pes_maps`) of the design
         plant, ``horizon`` samples long (kept with the loop maps' horizon)."""
-        if getattr(self, "_bpes_h", 0) < horizon:
+        if self._bpes_h < horizon:
             f, g = _blind.blind_pes_freqs(self.guard_bands, self.problem.blind_pes_points)
             self._bpes = _blind.blind_pes_maps(self.plant, self.controller, horizon, f, g)
             self._bpes_h = horizon

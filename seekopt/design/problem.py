@@ -202,12 +202,11 @@ class SeekProblem:
     guard_bands_hz : tuple
         Further guard bands ``(lo_hz, hi_hz)`` or ``(lo_hz, hi_hz, gain)``.
     blind_pes_points : int
-        Minimum seek-settle designs: the PES a mode of the Nyquist guard band (gain ``hf_gain``) adds after
-        the settle sample, forced and free, is bounded on this many frequencies across the band
-        (:mod:`seekopt.design.blind_pes`; 0: not).
+        Minimum seek-settle designs: the PES a mode of the Nyquist guard band (gain ``hf_gain``, either
+        sign) adds after the settle sample, forced and free, on this many frequencies across the band, is
+        added to every band plant's PES and the sum bounded (:mod:`seekopt.design.blind_pes`; 0: not).
     blind_pes_tol : float or None
-        That bound as a fraction of the settle band; None: ``1 - band_margin`` (the band above the design
-        band).  Rows off when it is not positive.
+        That bound as a fraction of the settle band; None: 1 (the band).  Rows off when not positive.
     check_robust : bool
         Also simulate each design on every plant of the robust set.
     input_tail_s : float
