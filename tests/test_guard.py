@@ -275,3 +275,22 @@ def test_blind_band_mode_forced_response_rows_keep_the_prediction_on_an_independ
     late, fixed = out[0], out[5]
     assert late[0] > late[1] + 3, out                 # without the rows: late (not within 3 samples)
     assert fixed[0] <= fixed[1] + 0.5, out            # with them: as predicted
+
+
+def test_blind_pes_rows_only_on_the_nyquist_band_and_switchable():
+    from seekopt.design.blind_pes import blind_pes_freqs, blind_pes_maps
+    bands = [GuardBand(4000.0, 4200.0, "notch"), GuardBand(11880.0, 17160.0, "nyquist", 0.5)]
+    f, g = blind_pes_freqs(bands, 5)
+    assert np.allclose(f, np.linspace(11880.0, 17160.0, 5)) and np.all(g == 0.5)
+    assert blind_pes_freqs(bands[:1], 5)[0].size == 0 and blind_pes_freqs(bands, 0)[0].size == 0
+    p = small_plant()
+    prob = SeekProblem(p, Controller.nss(), 0.3, 0.1)
+    assert prob.blind_pes_bound() == 1.0
+    assert SeekProblem.from_json(SeekProblem(p, Controller.nss(), 0.3, 0.1, blind_pes_tol=0.95).to_json()).blind_pes_bound() == 0.95
+    assert SeekProblem(p, Controller.nss(), 0.3, 0.1, blind_pes_points=0).blind_pes_bound() is None
+    assert SeekProblem(p, Controller.nss(), 0.3, 0.1, hf_guard=None).blind_pes_bound() is None
+    # the rows' map is the part linear in the mode's gain: half of a twice-as-large mode's, to 3rd order
+    (d1u, d1r), = blind_pes_maps(p, Controller.nss(), 200, [15000.0], [0.1])
+    (d2u, d2r), = blind_pes_maps(p, Controller.nss(), 200, [15000.0], [0.2])
+    assert np.max(np.abs(d1u)) > 0 and np.allclose(2 * d1u, d2u, rtol=0, atol=1e-3 * np.max(np.abs(d2u)))
+    assert np.allclose(2 * d1r, d2r, rtol=0, atol=1e-3 * np.max(np.abs(d2r)))
