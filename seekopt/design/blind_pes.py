@@ -22,10 +22,11 @@ sensitivity-filtered forced *and* free response to the mode, linear in the profi
 half difference of the ``+g`` and ``-g`` loops is the part linear in ``g``; with ``+-d_f`` the rows hold for
 either sign of the mode and any smaller gain (linear in ``g``).  The mode's PES is taken from the design
 plant's loop and added to every set plant's (first order in the drift: a drifted plant with the mode is
-not simulated -- such loops may be unstable); ``tol`` (default 1: the band itself) leaves each plant's
-own rows at ``band_margin`` and spends only the headroom a plant has at each sample (a bound on ``d_f``
-alone, ``|d_f| <= 1 - band_margin``, measured: the NSS drift design K = 200 33 -> 37 samples, these rows
-34).  The rows' ``N_i`` are the band rows' (the nominal plant's may start earlier: ``nominal_first``).
+not simulated -- such loops may be unstable); ``tol`` (default ``(1 + band_margin) / 2``: half the margin
+above the design band, the other half left for identification error) leaves each plant's own rows at
+``band_margin`` and spends only the headroom a plant has at each sample (a bound on ``d_f`` alone,
+``|d_f| <= 1 - band_margin``, measured: the operating-range ``--drift`` design K = 200 33 -> 37 samples,
+these rows 34 with ``tol`` 1, 35 with 0.95).  The rows' ``N_i`` are the band rows' (the nominal plant's may start earlier: ``nominal_first``).
 
 Measured (studies/operating_range.py plants, ``--drift temp=+-4%,zeta=+-20%,gain=+-5%``, K = 200, hot
 member's mode at 15.74 kHz): zeta 0.02 gives an honest prediction with 4, 5 or 12 grid points (35 / 35);
