@@ -119,5 +119,5 @@ def _design_with_effects(args, plant, controller, robust, start, names) -> int:
           f"({prof.meta['direction']}), seek-settle {m.settle_time_s * 1e3:.3f} ms ({m.ratio_tbb:.2f} T_bb) on the "
           f"design plant with its effects ({prof.meta['effects_in_design']}), peak current {m.peak_current_a:.3f} A; "
           f"linear design there {lm.settle_time_s * 1e3:.3f} ms; {len(res.solves)} NLPs, Ipopt "
-          f"{res.ipopt_iterations} iterations in {res.ipopt_time_s:.2f} s")
+          f"{res.ipopt_iterations} iterations in {res.ipopt_time_s:.2f} s ({res.ipopt_cpu_s:.2f} s CPU)")
     return 0
