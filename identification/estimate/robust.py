@@ -10,7 +10,8 @@ b. Joint output-error fit of the measured position to the measured current over 
    ``scipy.optimize.least_squares`` over each mode's frequency and damping and the delay, with the
    linear parameters (``k0``, ``k0 bias``, ``k0 g_r``, in the final stage the residual compliance ``k0 D``
    of the modes the model does not hold (``residual_fs_multiple``, :class:`VarPro`; the plant does not hold it, so it
-   is kept only while its term is no larger than the model's output error, ``residual_max_share``, else the final
+   is kept only while its term is no larger than the model's output error or half the settle band, ``residual_max_share``
+   and ``residual_max_track``, else the final
    stage is refined without it: on an amplifier-lag log it paired with a broad mode at the frequency bound,
    gain 129, to build the lag's phase, and the plant without it missed the data by 2.4 track), per-segment initial position
    and velocity, run-out harmonics) projected out by LS at every evaluation.  The rigid body and the modes are the
@@ -437,7 +438,7 @@ class _Run:
         dropped = None
         if vp.residual_hz:                          # the plant does not hold the term: it must stay small
             term, oe = self.residual_share(vp0, x, c)
-            if term > self.s.residual_max_share * oe:
+            if term > max(self.s.residual_max_share * oe, self.s.residual_max_track):
                 R = _n_modes(x)
                 dropped = {"s2": float(c[2 + R] / c[0]), "mode_hz": vp.residual_hz, "kept": False,
                            "term_rms_track": term, "oe_rms_track": oe,

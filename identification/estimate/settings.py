@@ -132,8 +132,9 @@ class RobustSettings(IdentifySettings):
         its ``w^2`` [-]; 0: no such term, and a missed mode's quasi-static response is taken up by the
         highest fitted modes' gains and damping, biasing them by several std, see
         :class:`identification.estimate.varpro.VarPro`), ``residual_max_share`` (the plant does not
-        hold that term: it is kept only while its contribution's RMS on the fit rows is at most this
-        multiple of the fitted model's output-error RMS [-]; beyond it the term is not a residual
+        hold that term: it is kept while its contribution's RMS on the fit rows is at most this
+        multiple of the fitted model's output-error RMS [-] or at most ``residual_max_track`` [track]
+        (half the settle band: a noise-free log has no output error to compare with); beyond both it is not a residual
         compliance but half of a pair with a fitted mode -- e.g. a broad mode at the frequency bound
         and a compliance of opposite sign that together build the phase of an amplifier lag -- and the
         plant without it would not be the model fitted, so the final stage is refined without it).
@@ -209,6 +210,7 @@ class RobustSettings(IdentifySettings):
     scan_idle_rounds: int = 2
     residual_fs_multiple: float = 2.0
     residual_max_share: float = 1.0
+    residual_max_track: float = 0.05
 
     method = "robust"
 
@@ -232,8 +234,9 @@ class RobustSettings(IdentifySettings):
             raise ValueError(f"ar_order must be a non-negative integer, got {self.ar_order!r}")
         if not (self.residual_fs_multiple == 0 or self.residual_fs_multiple > 0.5):
             raise ValueError(f"residual_fs_multiple must be 0 or above 0.5 (above Nyquist), got {self.residual_fs_multiple!r}")
-        if not self.residual_max_share > 0:
-            raise ValueError(f"residual_max_share must be positive, got {self.residual_max_share!r}")
+        for name in ("residual_max_share", "residual_max_track"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be positive, got {getattr(self, name)!r}")
         for name in ("scan_step_rel", "scan_step_zeta"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)!r}")
