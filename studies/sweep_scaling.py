@@ -124,7 +124,7 @@ def main(argv=None) -> int:
             if ref is not None and ref is not r else float("nan")
         print(f"{name:9s} {r['cells']:4d} cells  wall {r['wall_s']:7.1f} s (cells {r['compute_s']:.1f} s)  {r['cells_per_s']:6.3f} cells/s  "
               f"efficiency {eff:6.1%} (from CPU and busy share {eff_cpu:6.1%})  busy {r['busy']:.1%}  cell CPU {r['cell_cpu_s']:7.1f} s ({r['cpu_per_cell_s']:.3f} s/cell)  "
-              f"all processes' CPU {r['tree_cpu_s']:.1f} s  designers built {r['builds']} on {r['workers']} workers  cluster start {r['start_s']:.1f} s  "
+              f"all processes' CPU {r['tree_cpu_s']:.1f} s  designers built {r['builds']} on {r['workers']} workers (BLAS threads {r['blas']})  cluster start {r['start_s']:.1f} s  "
               f"load {r['load']}  ok={r['ok']}", flush=True)
     if a.output is None:
         shutil.rmtree(base, ignore_errors=True)
