@@ -92,11 +92,20 @@ def one_run(cfg: SweepConfig, name: str, folder: Path) -> dict:
     tree = tree_cpu() - cpu0
     cpu = getattr(s, "cell_cpu_s", float("nan"))      # (not recorded before the sweep's lanes)
     built = getattr(s, "designers_built", {})
-    blas = sorted(set(getattr(s, "blas_threads", {}).values()))
-    return dict(run=name, cells=s.computed, wall_s=wall, compute_s=getattr(s, "compute_wall_s", float("nan")), cells_per_s=s.computed / wall, cell_cpu_s=cpu,
-                cpu_per_cell_s=cpu / max(s.computed, 1), tree_cpu_s=tree, builds=sum(built.values()) if built else float("nan"),
-                workers=len(built), blas=blas, busy=busy_fraction(folder), start_s=start_s, load=f"{before} -> {load()}", ok=s.ok)
+    return dict(run=name, cells=s.computed, wall_s=wall, compute_s=getattr(s, "compute_wall_s", float("nan")),
+                cells_per_s=s.computed / wall, cell_cpu_s=cpu, cpu_per_cell_s=cpu / max(s.computed, 1),
+                tree_cpu_s=tree, builds=sum(built.values()) if built else float("nan"), workers=len(built),
+                blas=sorted(set(getattr(s, "blas_threads", {}).values())), busy=busy_fraction(folder),
+                start_s=start_s, load=f"{before} -> {load()}", ok=s.ok)
 
+
+def line(name: str, r: dict, eff: float, eff_cpu: float) -> str:
+    """One run's figures on one line."""
+    return (f"{name:9s} {r['cells']:4d} cells  wall {r['wall_s']:7.1f} s (cells {r['compute_s']:.1f} s)  "
+            f"{r['cells_per_s']:6.3f} cells/s  efficiency {eff:6.1%} (from CPU and busy share {eff_cpu:6.1%})  "
+            f"busy {r['busy']:.1%}  cell CPU {r['cell_cpu_s']:7.1f} s ({r['cpu_per_cell_s']:.3f} s/cell)  "
+            f"all processes' CPU {r['tree_cpu_s']:.1f} s  designers built {r['builds']} on {r['workers']} workers "
+            f"(BLAS threads {r['blas']})  cluster start {r['start_s']:.1f} s  load {r['load']}  ok={r['ok']}")
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -122,10 +131,7 @@ def main(argv=None) -> int:
         # share of the time the workers computed
         eff_cpu = (ref["tree_cpu_s"] / ref["cells"]) / (r["tree_cpu_s"] / r["cells"]) * r["busy"] \
             if ref is not None and ref is not r else float("nan")
-        print(f"{name:9s} {r['cells']:4d} cells  wall {r['wall_s']:7.1f} s (cells {r['compute_s']:.1f} s)  {r['cells_per_s']:6.3f} cells/s  "
-              f"efficiency {eff:6.1%} (from CPU and busy share {eff_cpu:6.1%})  busy {r['busy']:.1%}  cell CPU {r['cell_cpu_s']:7.1f} s ({r['cpu_per_cell_s']:.3f} s/cell)  "
-              f"all processes' CPU {r['tree_cpu_s']:.1f} s  designers built {r['builds']} on {r['workers']} workers (BLAS threads {r['blas']})  cluster start {r['start_s']:.1f} s  "
-              f"load {r['load']}  ok={r['ok']}", flush=True)
+        print(line(name, r, eff, eff_cpu), flush=True)
     if a.output is None:
         shutil.rmtree(base, ignore_errors=True)
     return 0

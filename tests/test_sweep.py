@@ -208,6 +208,19 @@ def test_two_workers_same_cells_one_designer_per_worker_and_tpi(engine, tmp_path
     assert set(s.blas_threads.values()) == {1}                   # one BLAS thread in every worker
 
 
+def test_worker_pool_sends_work_to_the_chosen_worker_and_joins_on_shutdown():
+    from seekopt.evaluate.engines import make_pool
+    pool = make_pool(2)
+    try:
+        pids = [pool.submit_to(lane, os.getpid).result(timeout=120) for lane in (0, 1, 0, 1)]
+        any_pid = pool.submit(os.getpid).result(timeout=120)
+        procs = pool.processes()
+    finally:
+        pool.shutdown(wait=True)
+    assert pids[0] == pids[2] != pids[1] == pids[3] and any_pid in pids and os.getpid() not in pids
+    assert len(procs) == 2 and all(p.exitcode is not None for p in procs)     # joined, not left running
+
+
 def test_lane_plan_keeps_tpis_on_workers_and_shares_the_last():
     from seekopt.evaluate.sweep_lanes import LanePlan
     cells = [(t, k) for t in (1e5, 2e5, 3e5) for k in (1, 3, 10, 30)]

@@ -48,8 +48,8 @@ import uuid
 
 from seekopt.design.blas import limit_blas
 
-__all__ = ["EngineError", "Engine", "SerialEngine", "PoolEngine", "DaskEngine", "make_engine", "make_pool", "WorkerPool",
-           "worker_held", "one_blas_thread", "limit_blas", "one_line"]
+__all__ = ["EngineError", "Engine", "SerialEngine", "PoolEngine", "DaskEngine", "make_engine", "make_pool",
+           "WorkerPool", "worker_held", "one_blas_thread", "limit_blas", "one_line"]
 
 _PR_SET_PDEATHSIG = 1
 

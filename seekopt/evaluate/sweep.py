@@ -39,7 +39,7 @@ computed, :func:`check_inputs` refuses a designer that cannot be made and a cont
 does not close a stable loop with the plant at every TPI (or runs at another sample rate).
 
 Engines (:mod:`seekopt.evaluate.engines`): ``serial`` (in process), ``process`` (default; a local
-:class:`concurrent.futures.ProcessPoolExecutor` whose workers have one BLAS thread and die with
+:class:`~seekopt.evaluate.engines.WorkerPool` of processes that have one BLAS thread and die with
 the sweep; Ipopt/MUMPS is not thread-safe, so processes), and Dask (``local`` starts a loopback
 :class:`dask.distributed.LocalCluster`, or a scheduler address ``tcp://HOST:PORT``).  Every
 worker holds one :class:`CellRunner` with one warm designer per (plant, controller, TPI), built
@@ -138,8 +138,8 @@ def run_sweep(cfg: SweepConfig, outdir, *, engine: str = "process", workers: int
     Cells are submitted lazily, each worker given the neighbouring lengths of one TPI in turn
     (:class:`seekopt.evaluate.sweep_lanes.LanePlan`: its designer stays warm; the longest lengths
     first and the last TPIs shared, so the workers finish together), at most ``Engine.depth`` cells
-    queued per worker, each claimed just before (:class:`seekopt.evaluate.claims.Claims`): a second sweep of the same
-    configuration into the same folder computes the cells the first has not claimed and waits for
+    queued per worker, each claimed just before (:class:`seekopt.evaluate.claims.Claims`): a second
+    sweep of the same configuration into the same folder computes the cells the first has not claimed and waits for
     the others, so the two share the work; a killed sweep's claims are taken over.
 
     Parameters

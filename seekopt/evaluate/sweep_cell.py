@@ -225,7 +225,8 @@ def compute_cell(payload: dict) -> dict:
     dict
         ``key, tpi, tracks, config_hash, computation_id, pid, rows`` (one per kind)
         and ``optimal_profile`` (a :meth:`Profile.to_dict` or None); ``cpu_s`` (CPU [s] of the cell),
-        ``designers_built`` (by the runner so far), ``host``, ``blas_threads`` (:func:`blas_threads`), ``started``, ``ended`` (unix time [s]).
+        ``designers_built`` (by the runner so far), ``host``, ``blas_threads`` (:func:`blas_threads`),
+        ``started``, ``ended`` (unix time [s]).
     """
     return CellRunner()(payload)
 
