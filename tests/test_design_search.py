@@ -11,7 +11,7 @@ from seekopt.design.certificates import proves_infeasible
 from seekopt.design.designer import SeekDesigner
 from seekopt.design.problem import SeekProblem, SolverSettings
 from seekopt.design.profiles import t_bang_bang
-from seekopt.design.search import bisect_length, gallop_length, predict_length
+from seekopt.design.search import bisect_length, gallop_length, prior_length, predict_length
 from seekopt.design.working_set import WorkingSetQP
 from seekopt.drive.controller import Controller
 from seekopt.drive.presets import default_truth_plant
@@ -67,10 +67,16 @@ def test_gallop_and_bisection_find_the_shortest_length_and_confirm_only_below_it
 def test_gallop_stops_at_an_infeasible_class_top_after_one_probe():
     s = _Lengths(40)
     assert gallop_length(s.probe, 20, 32, 32) is None
-    assert s.calls == [(32, False)]
+    assert s.calls == [(32, True)]          # the class's longest seek: confirmed at once (one probe)
     s = _Lengths(40)
     assert gallop_length(s.probe, 20, 30, 32) is None
-    assert [n for n, _ in s.calls] == [30, 31, 32]
+    assert s.calls == [(30, False), (31, False), (32, True)]
+
+
+def test_prior_length_starts_a_first_search_near_the_designed_lengths():
+    # designed lengths of the bundled plants (nominal): n_rigid 2 -> 6, 11 -> 19, 49 -> 64
+    assert prior_length(2) == 7 and prior_length(11) == 18 and prior_length(49) == 66
+    assert prior_length(0) == prior_length(1) == 6
 
 
 def test_predicted_length_is_the_neighbours_settle_overhead():

@@ -19,7 +19,6 @@ Used by :meth:`DiscretePlant.linear_response`.
 from __future__ import annotations
 
 import numpy as np
-from scipy.signal import lfilter
 
 __all__ = ["block_responses", "block_tf", "SLOW_POLE"]
 
@@ -57,6 +56,7 @@ def block_responses(dp, c, f, x0, hist0) -> np.ndarray:
     ndarray
         ``Y[k, b] = C_b x_b[k]`` (block ``b``: 0 the rigid body, then each mode), before step ``k``.
     """
+    from scipy.signal import lfilter    # on first use: importing scipy.signal costs ~0.8 s CPU (seekopt design start-up)
     N = len(c)
     ext = np.r_[np.asarray(hist0, float)[::-1], c]       # ext[j] = c[j - m - 1]
     # the inputs of step k (k = 0..N-2; the last step's input is not needed): c[k-m], c[k-m-1], f[k]

@@ -44,7 +44,7 @@ from seekopt.design.metrics import DEFAULT_TAIL_S
 from seekopt.design.problem import ProblemError, SeekProblem, check_closed_loop
 from seekopt.design.profiles import reference_from_model, t_bang_bang
 from seekopt.design.result import DesignError, DesignInfeasible, DesignResult, SolveStats
-from seekopt.design.search import bisect_length, gallop_length, predict_length
+from seekopt.design.search import bisect_length, gallop_length, predict_length, prior_length
 from seekopt.design.solvers import DAQP_PKG, SolverChain
 from seekopt.design.verification import packaged_design, played_design, verified_design
 from seekopt.design.working_set import WorkingSetQP
@@ -336,9 +336,11 @@ class SeekDesigner:
             return found
         return bisect_length(self._probe(qp, K, stats), lo, hi, best, unconfirmed, floor)
 
-    def _predict(self, n_rigid: int) -> int | None:
-        """Settle samples predicted from this designer's earlier designs (:func:`predict_length`)."""
-        return predict_length(self._history, n_rigid)
+    def _predict(self, n_rigid: int) -> int:
+        """Settle samples predicted from this designer's earlier designs (:func:`predict_length`), else
+        from the rigid bang-bang samples alone (:func:`prior_length`)."""
+        n = predict_length(self._history, n_rigid)
+        return prior_length(n_rigid) if n is None else n
 
     def _predicted_search(self, K, n_rigid, first, lo, stats):
         """Search from the predicted length (:meth:`_predict`): in the size class the old scan would end
@@ -346,21 +348,29 @@ class SeekDesigner:
         boundary, then bisect.  When the class holds no feasible length, its longest seek is solved
         with ``confirm=True``: a proof moves the search on to the next class (from the length after
         it, as the scan would end there), anything else returns None and the class scan decides.
-        Returns ``(qp, class, N, answer)`` or None (no prediction: the scan decides)."""
+        Without an earlier design nearby the prediction is :func:`prior_length`'s.
+        Returns ``(qp, class, N, answer)`` or None (the class scan decides)."""
         n_pred = self._predict(n_rigid)
-        if n_pred is None:
-            return None
         classes = self._classes(first)
-        c = next((x for x in classes if x >= n_pred), classes[-1])
+        # a prediction one past a class's longest seek starts in that class (its answers there are often
+        # one sample shorter: the class above would be built and searched, then left again)
+        c = next((x for x in classes if x >= n_pred - 1), classes[-1])
         went_down = False
         while True:
             qp = self._structure(c, False)
-            found = gallop_length(self._probe(qp, K, stats), lo, min(max(n_pred, lo + 1), c), c)
+            tops = {}
+
+            def probe(n, warm=None, confirm=True, _p=self._probe(qp, K, stats), _c=c, _tops=tops):
+                sol = _p(n, warm, confirm)
+                if n == _c and confirm:
+                    _tops[n] = sol
+                return sol
+            found = gallop_length(probe, lo, min(max(n_pred, lo + 1), c), c)
             if found is None:   # nothing in this class (search steps): is its longest seek proven infeasible?
                 later = [x for x in classes if x > c]
                 if went_down or not later or c <= lo:
                     return None
-                top = self._solve(qp, K, c, self.beta, stats)
+                top = tops.get(c) or self._solve(qp, K, c, self.beta, stats)   # gallop confirmed it
                 if not top.infeasible:
                     return None     # feasible after all, or undecided: the class scan decides
                 lo, c, n_pred = c, later[0], c + 1

@@ -8,7 +8,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy import optimize
 
 
 __all__ = ["LoopAnalysis", "loop_analysis", "print_loop_analysis", "plot_loop_analysis"]
@@ -87,7 +86,7 @@ def loop_analysis(controller, plant_frf, freqs_hz, zoh: bool = True) -> LoopAnal
     T = Lf * S
 
     def roots(g, mask):  # refine each bracketing grid interval exactly
-        return [optimize.brentq(lambda x: g(Lfun(x)[0]), f[i], f[i + 1], xtol=1e-9 * f[i])
+        return [_brentq()(lambda x: g(Lfun(x)[0]), f[i], f[i + 1], xtol=1e-9 * f[i])
                 for i in np.nonzero(mask)[0]]
 
     lm = np.log(np.abs(Lf))
@@ -156,3 +155,10 @@ def plot_loop_analysis(res: LoopAnalysis, path) -> Path:
         a.grid(True, which="both", alpha=0.3)
     fig.savefig(path, dpi=110)
     return Path(path)
+
+
+def _brentq():
+    """:func:`scipy.optimize.brentq`, imported on first use (scipy.optimize costs ~0.2 s of a
+    ``seekopt design`` start-up that seldom needs it)."""
+    from scipy.optimize import brentq
+    return brentq

@@ -9,7 +9,6 @@ every problem is a one-line :class:`ControllerError` naming the source.
 from __future__ import annotations
 
 import numpy as np
-from scipy import signal
 
 __all__ = ["ControllerError", "normalise_section", "section_ss", "series", "section_freqresp", "STAB_TOL"]
 
@@ -90,10 +89,36 @@ def section_ss(sec):
         num, den = np.asarray(sec["num"]), np.asarray(sec["den"])
         if den.size == 1:
             return np.zeros((0, 0)), np.zeros(0), np.zeros(0), float(num[-1] / den[0])
-        A, B, C, D = signal.tf2ss(num, den)
-        return A, B.ravel(), C.ravel(), float(D.ravel()[0])
+        return tf2ss(num, den)
     return (np.asarray(sec["A"], float).reshape(len(sec["B"]), len(sec["B"])),
             np.asarray(sec["B"], float), np.asarray(sec["C"], float), float(sec["D"]))
+
+
+def tf2ss(num, den):
+    """Controller canonical realisation ``(A, B[n], C[n], D)`` of the SISO transfer function
+    ``num(z) / den(z)`` (descending powers), with :func:`scipy.signal.tf2ss`'s normalisation and
+    state order, entry for entry (``tests/test_startup.py`` compares them): written here
+    because importing :mod:`scipy.signal` costs ~0.8 s of CPU, more than a whole ``seekopt design``
+    start-up should (issue 12).  ``den`` of length >= 2 (a static gain is handled by the caller)."""
+    den = np.trim_zeros(np.atleast_1d(np.asarray(den, dtype=float)), "f")
+    num = np.atleast_1d(np.asarray(num, dtype=float))
+    if den.size == 0:
+        raise ValueError("Denominator must have at least one nonzero element.")
+    num, den = num / den[0], den / den[0]
+    lead = 0
+    while lead < num.size - 1 and abs(num[lead]) <= 1e-14:     # leading zeros (at least one kept)
+        lead += 1
+    num = num[lead:]
+    M, K = num.size, den.size
+    if M > K:
+        raise ValueError("Improper transfer function. `num` is longer than `den`.")
+    num = np.concatenate([np.zeros(K - M), num])
+    if K == 1:
+        return np.zeros((1, 1)), np.zeros(1), np.zeros(1), float(num[0])
+    A = np.vstack([-den[1:][None, :], np.eye(K - 2, K - 1)])
+    B = np.eye(K - 1, 1).ravel()
+    C = num[1:] - num[0] * den[1:]
+    return A, B, C, float(num[0])
 
 
 def series(s1, s2):

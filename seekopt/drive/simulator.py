@@ -22,7 +22,6 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import signal
 
 from identification.model.discrete import block_tf, zoh
 from identification.model.plant import ModalPlant
@@ -62,6 +61,7 @@ class Disturbances:
 
     def output_disturbance(self, n: int, fs: float, t0: float = 0.0, rng=None) -> np.ndarray:
         """``d_out`` [track] for ``n`` servo samples (noise, flutter, run-out)."""
+        from scipy.signal import lfilter      # here: scipy.signal costs ~0.8 s to import (a design never needs it)
         rng = np.random.default_rng(self.seed) if rng is None else rng
         d = self.sensor_noise_track * rng.standard_normal(n)
         ts = 1.0 / fs
@@ -70,7 +70,7 @@ class Disturbances:
             # a few hundred samples of pre-roll so the filter is in steady state
             pre = int(min(20000, 10.0 / (fl["zeta"] * 2 * math.pi * fl["freq_hz"] * ts)))
             e = rng.standard_normal(n + pre)
-            d += signal.lfilter(num, den, e)[pre:]
+            d += lfilter(num, den, e)[pre:]
         t = t0 + ts * np.arange(n)
         for h, a, ph in self.rro_harmonics:
             d += a * np.sin(2 * math.pi * h * self.spindle_hz * t + ph)
