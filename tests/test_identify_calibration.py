@@ -209,3 +209,25 @@ def test_residual_compliance_takes_a_missed_modes_quasi_static_response():
     f, z, g, D = _fit_at(log, truth, truth.modes)
     assert abs(D) < 0.02 * abs(compliance)
     assert np.abs(g / np.array([m.gain for m in truth.modes]) - 1).max() < 0.02, g
+
+
+def test_floored_cov_raises_only_the_variances_below_the_floor():
+    """:func:`identification.estimate.linalg.floored_cov`: a variance below the floor's is raised to it,
+    one above is kept, the correlations are unchanged and the result stays positive semi-definite; the
+    robust settings switch it (``cov_floor_white``) and refuse a non-boolean."""
+    from identification.estimate.linalg import floored_cov
+    from identification.estimate.settings import RobustSettings
+    rng = np.random.default_rng(3)
+    A = rng.standard_normal((5, 5))
+    cov = A @ A.T
+    floor = np.diag(np.diag(cov) * np.array([2.0, 0.5, 1.0, 4.0, 0.1]))
+    out = floored_cov(cov, floor)
+    d = np.diag(out)
+    assert d == pytest.approx(np.maximum(np.diag(cov), np.diag(floor)))
+    corr = lambda c: c / np.sqrt(np.outer(np.diag(c), np.diag(c)))      # noqa: E731
+    assert corr(out) == pytest.approx(corr(cov))
+    assert np.linalg.eigvalsh(out).min() > -1e-12 * np.abs(out).max()
+    assert floored_cov(cov, 0.5 * cov) == pytest.approx(cov)
+    assert RobustSettings().cov_floor_white is True
+    with pytest.raises(ValueError, match="cov_floor_white"):
+        RobustSettings(cov_floor_white=1)

@@ -4,9 +4,10 @@ one per-seek initial-condition projector.
 * :func:`lstsq` -- column-scaled, rank-revealing (SVD, singular values below ``rcond`` times the
   largest are dropped) least squares, optionally with bounds (:func:`scipy.optimize.lsq_linear`).
   Every LS solve in :mod:`identification` goes through it.
-* :func:`white_cov`, :func:`sandwich_cov`, :func:`cluster_cov`, :func:`wald` -- covariance of LS
-  estimates: Gauss-Newton ``s^2 (J^T J)^-1`` for white residuals, the Newey-West and cluster
-  sandwiches for correlated ones, and the Wald statistic of a coefficient block.
+* :func:`white_cov`, :func:`sandwich_cov`, :func:`cluster_cov`, :func:`floored_cov`, :func:`wald` --
+  covariance of LS estimates: Gauss-Newton ``s^2 (J^T J)^-1`` for white residuals, the Newey-West
+  and cluster sandwiches for correlated ones, a sandwich whose variances are floored at the
+  Gauss-Newton ones, and the Wald statistic of a coefficient block.
 * :class:`SegmentProjector` -- removes each seek's initial position and velocity (a per-segment
   polynomial in time) by orthogonal projection: the one place where per-seek ``p0 + v0 t`` is
   taken out of the data and the regressors (variable projection of linear nuisance parameters).
@@ -20,7 +21,7 @@ import numpy as np
 from scipy import sparse
 from scipy.optimize import lsq_linear
 
-__all__ = ["lstsq", "white_cov", "sandwich_cov", "cluster_cov", "wald", "SegmentProjector"]
+__all__ = ["lstsq", "white_cov", "sandwich_cov", "cluster_cov", "floored_cov", "wald", "SegmentProjector"]
 
 
 def _column_scale(A: np.ndarray) -> np.ndarray:
@@ -158,6 +159,24 @@ def _sandwich(J, r, labels=None, bounds=None, lags: int = 0):
         M += w * (C + C.T)
     cov = B @ M @ B * len(r) / dof
     return cov / np.outer(s, s), cov_white / np.outer(s, s)
+
+
+def floored_cov(cov, floor) -> np.ndarray:
+    """``cov`` with every variance at least ``floor``'s, its correlations kept: ``S cov S`` with
+    ``S = diag(max(1, sqrt(floor_ii / cov_ii)))`` (a congruence: positive semi-definite when ``cov`` is).
+
+    Use: a sandwich built from the estimate's own residuals is biased low when few independent
+    blocks carry a parameter's information (the residuals are orthogonal to the Jacobian, so the
+    scores summed over all rows vanish: the more lags or the larger the clusters, the more of the
+    score's variance the estimate loses); the Gauss-Newton covariance of the whitened problem is the
+    floor where the noise model has whitened the residual.  Measured on the 36 kHz drive
+    (``studies/std_calibration.py``, 20 seeds, the same fits): RMS of the gains' normalised errors
+    1.11 with the Gauss-Newton covariance, 1.24 / 1.27 / 1.32 with Newey-West at 32 / 96 / 256 lags,
+    1.43 with one cluster per seek."""
+    cov = np.asarray(cov, dtype=float)
+    d, f = np.diag(cov), np.diag(np.asarray(floor, dtype=float))
+    s = np.sqrt(np.maximum(1.0, np.where(d > 0, f / np.where(d > 0, d, 1.0), 1.0)))
+    return cov * np.outer(s, s)
 
 
 def wald(theta, cov) -> float:

@@ -39,7 +39,10 @@ b. Joint output-error fit of the measured position to the measured current over 
    again (:attr:`VarPro.affine_free`).
 c. Standard deviations from the Jacobian of the whitened problem with respect to all parameters
    (Gauss-Newton covariance), as a Newey-West sandwich (Bartlett weights, ``nw_lags`` lags, within
-   segments, :func:`identification.estimate.linalg.sandwich_cov`) for the colour the AR model leaves;
+   segments, :func:`identification.estimate.linalg.sandwich_cov`) for the colour the AR model leaves,
+   each variance floored at the plain ``s^2 (J^T J)^-1`` (``cov_floor_white``: a sandwich of the
+   estimate's own residuals is biased low when few seeks carry a parameter; on the 36 kHz drive the
+   gains' normalised errors had RMS 1.24 with the sandwich alone, 1.11 with the Gauss-Newton one);
    the ratio to the plain ``s^2 (J^T J)^-1`` is reported (``diagnostics["std_inflation_median"]``).
    They are statistical only: model error is not in them.
 d. The bias force from the whole log (``bias_from="whole-log"``, default): the rigid body's momentum
@@ -65,7 +68,7 @@ import time
 import numpy as np
 
 from identification.estimate.heldout import initial_velocities
-from identification.estimate.linalg import sandwich_cov, white_cov
+from identification.estimate.linalg import floored_cov, sandwich_cov, white_cov
 from identification.estimate.pencil import matrix_pencil, stabilisation_diagram
 from identification.estimate.prony import z_to_modal
 from identification.estimate.result import Identification
@@ -421,6 +424,8 @@ class _Run:
         rf, x = self.start()
         x, n_stage = self.search_stage(x)
         x, vp, vp0, cov, cov_white, c, r = self.final_stage(x)
+        if self.s.cov_floor_white:                  # the reported std (the modes' t-test above kept as it was)
+            cov = floored_cov(cov, cov_white)
         self.ppo["final"] = list(zip(*VarPro.unpack(x)[:2]))
         f, z, d = VarPro.unpack(x)
         R, nx = _n_modes(x), len(x)

@@ -124,7 +124,9 @@ class RobustSettings(IdentifySettings):
         fitted to the output error differenced that many times [-]; 2: the unlogged force noise
         through the rigid body's double integrator, a random walk of velocity within each seek, which
         an AR model of short detrended segments cannot place on the unit circle), ``cov`` (``"newey-west"`` or
-        ``"cluster"``), ``nw_lags`` (Newey-West lags [samples]), ``bias_from`` (``"whole-log"``:
+        ``"cluster"``), ``nw_lags`` (Newey-West lags [samples]), ``cov_floor_white`` (every variance at
+        least the Gauss-Newton one of the whitened problem, the sandwich's correlations kept:
+        :func:`identification.estimate.linalg.floored_cov`), ``bias_from`` (``"whole-log"``:
         the rigid body's momentum balance from seek to seek over the whole log; ``"seeks"``: the
         per-seek output-error fit's), ``residual_fs_multiple`` (the output-error model's residual
         compliance of the modes it does not hold -- a missed mode near the detection threshold, modes
@@ -178,6 +180,7 @@ class RobustSettings(IdentifySettings):
     ar_order: int = 32
     cov: str = "newey-west"
     nw_lags: int = 32
+    cov_floor_white: bool = True
     noise_model_passes: int = 1
     noise_unit_poles: int = 2
     bias_from: str = "whole-log"
@@ -210,6 +213,8 @@ class RobustSettings(IdentifySettings):
         super().__post_init__()
         if self.cov not in ("newey-west", "cluster"):
             raise ValueError(f"cov must be 'newey-west' or 'cluster', got {self.cov!r}")
+        if not isinstance(self.cov_floor_white, bool):
+            raise ValueError(f"cov_floor_white must be True or False, got {self.cov_floor_white!r}")
         if self.bias_from not in ("whole-log", "seeks"):
             raise ValueError(f"bias_from must be 'whole-log' or 'seeks', got {self.bias_from!r}")
         if not (self.periodic in ("auto", None) or (isinstance(self.periodic, numbers.Integral)
