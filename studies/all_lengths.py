@@ -8,7 +8,9 @@ Run::
 Lengths: ``np.geomspace(1, kmax, n)`` rounded to 0.1 track (the issue's 40 log-spaced lengths K = 1 ... 1e5).
 Design plants: ``bundled`` (:func:`seekopt.drive.presets.default_truth_plant`) and ``notch`` (the same plus a
 mode in the NSS controller's 8.2 kHz notch, gain 0.1, zeta 0.01, as ``studies/operating_range.py``).
-Designers: ``nominal`` and ``robust`` (``RobustSpec()``), Imax 0.3 A, band 0.1 track.
+Designers: ``nominal`` and ``robust`` (``RobustSpec()``), Imax 0.3 A, band 0.1 track, dispatched as ``seekopt design``
+does without ``--vmax``: :class:`seekopt.design.longseek.LongSeekDesigner` (rest-to-rest QPs below its
+``long_from_track``, acceleration-step compositions from there on).
 
 Per length, one of these outcomes:
 
@@ -60,21 +62,25 @@ def design_plant(name: str):
 
 def worker(plant_name: str, kind: str, ks: list) -> None:
     """Design ``ks`` in turn with one designer; one JSON line per length on stdout."""
+    from seekopt.design.longseek import LongSeekDesigner, LongSeekError, LongSeekSpec
     from seekopt.design.ocp import RobustSpec, SeekDesigner
     from seekopt.design.result import DesignError, DesignInfeasible
     from seekopt.drive.controller import Controller
-    des = SeekDesigner(design_plant(plant_name), Controller.nss(), 0.3, 0.1,
-                       robust=RobustSpec() if kind == "robust" else None)
+    short = SeekDesigner(design_plant(plant_name), Controller.nss(), 0.3, 0.1,
+                         robust=RobustSpec() if kind == "robust" else None)
+    des = LongSeekDesigner(short.problem, LongSeekSpec(), short_designer=short)     # the CLI's dispatch
     for K in ks:
         c0, t0 = time.process_time(), time.perf_counter()
         row = dict(plant=plant_name, design=kind, K=K)
         try:
             res = des.design(K)
             row.update(outcome="designed", N=int(res.settle_samples), unresolved=int(res.unresolved_solves),
-                       fallback=int(res.fallback_solves), n_solves=int(res.n_solves))
+                       fallback=int(res.fallback_solves), n_solves=int(res.n_solves), path=res.profile.kind,
+                       settle_s=float(res.metrics.settle_time_s), ratio_tbb=float(res.metrics.ratio_tbb),
+                       peak_a=float(res.metrics.peak_current_a))
         except DesignInfeasible as exc:
             row.update(outcome="infeasible", why=str(exc)[:140])
-        except DesignError as exc:
+        except (DesignError, LongSeekError) as exc:
             row.update(outcome="solver failure", why=str(exc)[:240])
         row.update(cpu_s=time.process_time() - c0, wall_s=time.perf_counter() - t0)
         print(json.dumps(row), flush=True)

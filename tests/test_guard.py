@@ -248,3 +248,49 @@ def test_blind_bands_belong_to_the_plant_they_were_computed_for():
     assert new["source"] == "user note" and new["log"] == "drive.npz" and new["heldout_fit_percent"] == 90.0
     # a re-identification without blind bands leaves none (stale ones are not kept)
     assert not set(BLIND_KEYS) & set(reidentified_meta(previous, {"method": "robust"}))
+
+
+def test_blind_band_mode_forced_response_rows_keep_the_prediction_on_an_independent_drive():
+    """The independent NSS-like drive of ``tests/drives`` (no noise, no bias) with its -1 gain mode at
+    16.4 kHz, above Nyquist (13.2 kHz); the design plant is its spec without that mode (what a log at
+    26.4 kHz shows), the default drift set.  K = 1000: without the blind-band PES rows the design predicts
+    68 samples and the drive settles in 77 (the mode's forced response during the arrival: measured);
+    with them (:mod:`seekopt.design.blind_pes`) the drive settles when predicted (measured 70 / 70)."""
+    from seekopt.design.family import Drift
+    from tests.drives.drive import run
+    from tests.drives.presets import nss_drive, nss_truth
+    tp = nss_truth(bias_a=0.0)
+    assert any(m.freq_hz > FS / 2 for m in tp.modes)             # the scenario: a mode the log cannot see
+    drive = nss_drive(tp, noise=False)
+    plant = ModalPlant(k0=tp.k0, modes=[Mode(m.freq_hz, m.zeta, m.gain) for m in tp.modes if m.freq_hz < FS / 2],
+                       delay_s=tp.delay_s, sample_rate_hz=FS)
+    K, band = 1000.0, 0.1
+    out = {}
+    for pts in (0, 5):
+        r = SeekDesigner(SeekProblem(plant, Controller.nss(), 0.3, band, robust=Drift(), blind_pes_points=pts)).design(K)
+        u, ref = r.profile.padded(r.profile.n + 300)
+        tr = run(drive, u, ref, position0=0.0)
+        actual = int(np.nonzero(np.abs(tr.true_position_track - K) > band)[0][-1]) + 1
+        out[pts] = (actual, r.prediction.worst_metrics.settle_time_s * FS)
+    late, fixed = out[0], out[5]
+    assert late[0] > late[1] + 3, out                 # without the rows: late (not within 3 samples)
+    assert fixed[0] <= fixed[1] + 0.5, out            # with them: as predicted
+
+
+def test_blind_pes_rows_only_on_the_nyquist_band_and_switchable():
+    from seekopt.design.blind_pes import blind_pes_freqs, blind_pes_maps
+    bands = [GuardBand(4000.0, 4200.0, "notch"), GuardBand(11880.0, 17160.0, "nyquist", 0.5)]
+    f, g = blind_pes_freqs(bands, 5)
+    assert np.allclose(f, np.linspace(11880.0, 17160.0, 5)) and np.all(g == 0.5)
+    assert blind_pes_freqs(bands[:1], 5)[0].size == 0 and blind_pes_freqs(bands, 0)[0].size == 0
+    p = small_plant()
+    prob = SeekProblem(p, Controller.nss(), 0.3, 0.1)
+    assert prob.blind_pes_bound() == pytest.approx(0.9)          # (1 + band_margin 0.8) / 2
+    assert SeekProblem.from_json(SeekProblem(p, Controller.nss(), 0.3, 0.1, blind_pes_tol=0.95).to_json()).blind_pes_bound() == 0.95
+    assert SeekProblem(p, Controller.nss(), 0.3, 0.1, blind_pes_points=0).blind_pes_bound() is None
+    assert SeekProblem(p, Controller.nss(), 0.3, 0.1, hf_guard=None).blind_pes_bound() is None
+    # the rows' map is the part linear in the mode's gain: half of a twice-as-large mode's, to 3rd order
+    (d1u, d1r), = blind_pes_maps(p, Controller.nss(), 200, [15000.0], [0.1])
+    (d2u, d2r), = blind_pes_maps(p, Controller.nss(), 200, [15000.0], [0.2])
+    assert np.max(np.abs(d1u)) > 0 and np.allclose(2 * d1u, d2u, rtol=0, atol=1e-3 * np.max(np.abs(d2u)))
+    assert np.allclose(2 * d1r, d2r, rtol=0, atol=1e-3 * np.max(np.abs(d2r)))

@@ -214,3 +214,79 @@ def test_velocity_step_meets_the_guard_in_notches_and_blind_bands(plant, ctrl):
         f, g = gmod.guard_grid([b], 10.0)
         z = np.abs(mode_residuals(blind.k0, ctrl.sample_rate_hz, ctrl.fast_multiple, i.ravel(), f, g)) / 0.1
         assert np.max(z) <= prob.hf_tol, (str(b), float(np.max(z)))
+
+
+@pytest.fixture(scope="module")
+def free(plant, ctrl):
+    """No velocity limit: the dispatch of ``seekopt design`` (rest-to-rest below ``long_from_track``)."""
+    return LongSeekDesigner(plant, ctrl, IMAX, 0.1, None, LongSeekSpec())
+
+
+def test_long_seeks_without_vmax_come_from_one_acceleration_step(free, plant, ctrl):
+    """Every long seek is four shifted copies of one acceleration step designed once: the cost of a design
+    does not grow with the length (no QP after the step), each is rest-to-rest exact, within Imax and
+    settled in the one simulator, and near the bang-bang time (within 1.1 T_bb + the K = 1000 rest-to-rest
+    design's overhead; measured 1.18 T_bb at 1e4, 1.08 T_bb at 1e5)."""
+    overhead = None
+    for i, tracks in enumerate([2e4, -1e5, 1e5 - 0.5]):
+        res = free.design(tracks)
+        prof = res.profile
+        assert prof.kind == "long_seek" and res.status == "verified"
+        assert res.n_solves == (free.accel_step().meta["qp_solves"] if i == 0 else 0)
+        fs = prof.sample_rate_hz
+        M = rigid_endpoint_matrix(prof.n, plant.k0, 1.0 / fs)
+        assert np.allclose(M @ prof.current_a, [tracks, 0.0], atol=1e-6 * abs(tracks))
+        assert prof.reference_track[-1] == tracks
+        m = evaluate_profile(plant, ctrl, prof, settle=0.1)
+        assert m.peak_current_a <= IMAX and m.settled
+        assert m.settle_time_s * fs <= res.settle_samples + 1
+        if overhead is None:
+            r1000 = SeekDesigner(plant, ctrl, IMAX, 0.1).design(1000.0)
+            overhead = r1000.metrics.settle_time_s - t_bang_bang(1000, plant.k0, IMAX)
+        assert m.settle_time_s <= 1.1 * t_bang_bang(tracks, plant.k0, IMAX) + overhead
+
+
+def test_dispatch_rule_rest_to_rest_below_long_from_track(free):
+    """Below ``long_from_track`` the rest-to-rest QP designs the seek; from there on the acceleration step."""
+    k_long = free.long_from_track()
+    assert k_long == pytest.approx(free.accel_step().accel_track * max(free.accel_step().n, 32) ** 2)
+    assert 1000 < k_long < 3000       # measured 1627 tracks on the bundled drive (step of 22 samples)
+    assert free.design(0.95 * k_long).profile.kind == "optimal"
+    assert free.design(1.0001 * k_long).profile.kind == "long_seek"
+
+
+def test_acceleration_step_rides_the_parabola(free, plant, ctrl):
+    """The step's error on the nominal linear loop settles by its length and dies out; after it the
+    current is the constant I0 and the reference the rigid parabola (plus a constant)."""
+    st = free.accel_step()
+    assert st.i0_a <= free.gamma * IMAX - abs(plant.bias_a)
+    assert settle_index(st.error_track, 0.1) <= st.settle_samples
+    H = 3 * st.n + 200
+    R = closed_loop_responses(plant, ctrl, H)
+    u, r = st.extended(H)
+    assert np.all(u[st.n:] == st.i0_a)
+    assert np.allclose(np.diff(r[st.n + 3:], 2), st.accel_track, rtol=1e-9)
+    e = np.convolve(R["y_uff"], u)[:H] + np.convolve(R["y_r"], r)[:H] - r
+    assert settle_index(e, 0.1) <= st.settle_samples and np.max(np.abs(e[-50:])) < 0.01
+
+
+def test_cli_design_long_seek_without_vmax(tmp_path, plant, capsys):
+    pj = tmp_path / "plant.json"
+    plant.to_json(pj)
+    out = tmp_path / "p.csv"
+    assert main(["design", "--plant", str(pj), "--tracks", "50000", "--imax", "0.3", "--robust", "none",
+                 "-o", str(out)]) == 0
+    assert "coasts" in capsys.readouterr().out and "kind: long_seek" in out.read_text()
+
+
+def test_rest_to_rest_up_to_keeps_the_qp_above_long_from_track(plant, ctrl, free):
+    """``rest_to_rest_up_to_track`` moves the dispatch: a seek just past ``long_from_track`` is designed
+    rest-to-rest when the user asks for it, and settles no later than the acceleration step's design."""
+    K = 1.02 * free.long_from_track()
+    r2r = LongSeekDesigner(plant, ctrl, IMAX, 0.1, None, LongSeekSpec(rest_to_rest_up_to_track=1.05 * K))
+    a, b = free.design(K), r2r.design(K)
+    assert a.profile.kind == "long_seek" and b.profile.kind == "optimal"
+    assert b.settle_samples <= a.settle_samples
+    assert LongSeekSpec.from_dict(r2r.spec.to_dict()) == r2r.spec
+    with pytest.raises(ValueError):
+        LongSeekSpec(rest_to_rest_up_to_track=-1.0)

@@ -42,10 +42,12 @@ def test_validation_rms_reaches_the_clean_floor(case):
     assert r["rms_after"] <= lq.RATIO_TARGET * c["rms_after"], (r["rms_after"], c["rms_after"], r["accepted"])
 
 
-@pytest.mark.xfail(strict=True, reason="measured on session 6's merged main (8a7e137): the lag is accepted but "
-                   "named at 4408 Hz (truth 3000 Hz; 3086 Hz on h-loopq before the residual-compliance column of "
-                   "h-cal2 merged); cause not found")
 def test_amplifier_lag_is_named_with_its_bandwidth():
+    """Named at 3086 Hz, total delay 15.4 us (truth 3000 Hz, 14 us).  It was 4408 Hz on session 6's
+    merged main: the identification's residual-compliance term paired with a 25.1 kHz mode of gain
+    129 to build the lag's phase and the plant, which does not hold the term, missed the fit log by
+    2.35 track (validation RMS 2.33 before the loop); the term is now kept only while it is small
+    (``RobustSettings.residual_max_share``)."""
     r = _row("lag")
     assert "amplifier_lag" in r["accepted"], r["accepted"]
     assert abs(r["lag_bandwidth_hz"] / 3000.0 - 1) < 0.15, r["lag_bandwidth_hz"]

@@ -9,7 +9,11 @@ b. Joint output-error fit of the measured position to the measured current over 
    the noise at its frequency), by variable projection (:class:`identification.estimate.varpro.VarPro`):
    ``scipy.optimize.least_squares`` over each mode's frequency and damping and the delay, with the
    linear parameters (``k0``, ``k0 bias``, ``k0 g_r``, in the final stage the residual compliance ``k0 D``
-   of the modes the model does not hold (``residual_fs_multiple``, :class:`VarPro`), per-segment initial position
+   of the modes the model does not hold (``residual_fs_multiple``, :class:`VarPro`; the plant does not hold it, so it
+   is kept only while its term is no larger than the model's output error or half the settle band, ``residual_max_share``
+   and ``residual_max_track``, else the final
+   stage is refined without it: on an amplifier-lag log it paired with a broad mode at the frequency bound,
+   gain 129, to build the lag's phase, and the plant without it missed the data by 2.4 track), per-segment initial position
    and velocity, run-out harmonics) projected out by LS at every evaluation.  The rigid body and the modes are the
    one discretisation of :mod:`identification.model.discrete` (ZOH, fractional delay, multirate
    sub-step hold when the log has the sub-step currents); each mode's response runs over the whole
@@ -363,16 +367,16 @@ class _Run:
         self.lap("scan")
         return x, int(sum(b - a for a, b in sub[2]))
 
-    def final_stage(self, x):
+    def final_stage(self, x, residual: bool = True):
         """(c) All fitted seeks: AR model from the OE residual, refine, prune, covariance (modes not
-        significant in it dropped)."""
+        significant in it dropped); ``residual``: with the residual-compliance column."""
         s = self.s
         data = (0, None, self.segs)
-        vp, vp0 = self.problem(data, x, residual=True)
+        vp, vp0 = self.problem(data, x, residual=residual)
         if len(x) > 1:
             x = self.prune(vp, self.refine(vp, x, s.final_nfev))
         for _ in range(s.noise_model_passes):       # the noise model of the prediction-error estimate's own error
-            vp, vp0 = self.problem(data, x, noise_from=vp, residual=True)
+            vp, vp0 = self.problem(data, x, noise_from=vp, residual=residual)
             if len(x) > 1:
                 x = self.refine(vp, x, s.final_nfev)
         while True:
@@ -385,6 +389,15 @@ class _Run:
             x = _drop(x, np.arange(R) != int(np.argmin(tv)))
             if len(x) > 1:
                 x = self.refine(vp, x, s.final_nfev)
+
+    def residual_share(self, vp0: VarPro, x, c) -> tuple[float, float]:
+        """``(RMS of the residual-compliance term, RMS of the output error)`` [track] on the fit rows
+        (unwhitened, per-segment affine projected out) of the coefficients ``c`` at ``x``: what the
+        plant, which does not hold the term, loses against the model fitted."""
+        R = _n_modes(x)
+        X = vp0.solve(x)[0]
+        term = X[:, 2 + R] * c[2 + R]
+        return float(np.sqrt(np.mean(term ** 2))), float(np.sqrt(np.mean((vp0.yt - X @ c) ** 2)))
 
     def covariance(self, vp: VarPro, x):
         """``(cov, cov_white, r)`` of ``[x, c]``: the sandwich (``cov`` setting) of the whitened
@@ -423,7 +436,17 @@ class _Run:
     def identify(self) -> Identification:
         rf, x = self.start()
         x, n_stage = self.search_stage(x)
+        x_search = x
         x, vp, vp0, cov, cov_white, c, r = self.final_stage(x)
+        dropped = None
+        if vp.residual_hz:                          # the plant does not hold the term: it must stay small
+            term, oe = self.residual_share(vp0, x, c)
+            if term > max(self.s.residual_max_share * oe, self.s.residual_max_track):
+                R = _n_modes(x)
+                dropped = {"s2": float(c[2 + R] / c[0]), "mode_hz": vp.residual_hz, "kept": False,
+                           "term_rms_track": term, "oe_rms_track": oe,
+                           "modes_with_it": [(float(f), float(z)) for f, z in zip(*VarPro.unpack(x)[:2])]}
+                x, vp, vp0, cov, cov_white, c, r = self.final_stage(x_search, residual=False)
         if self.s.cov_floor_white:                  # the reported std (the modes' t-test above kept as it was)
             cov = floored_cov(cov, cov_white)
         self.ppo["final"] = list(zip(*VarPro.unpack(x)[:2]))
@@ -449,7 +472,9 @@ class _Run:
         plant.bias_a, plant.std["bias_a"] = self.bias(plant, diag.get("runout"))
         if vp.residual_hz:                          # c[2 + R] = k0 D: the residual compliance [s^2]
             diag["residual_compliance"] = {"s2": float(c[2 + R] / c[0]), "std": _ratio_std(c, cc, 2 + R),
-                                           "mode_hz": vp.residual_hz}
+                                           "mode_hz": vp.residual_hz, "kept": True}
+        elif dropped is not None:
+            diag["residual_compliance"] = dropped
         infl = np.sqrt(np.diag(cov) / np.maximum(np.diag(cov_white), _TINY))
         diag.update(ar_order=int(self.s.ar_order), std_inflation_median=float(np.median(infl)),
                     std_inflation_max=float(np.max(infl)), whitened_residual_rms=float(np.sqrt(np.mean(r ** 2))),

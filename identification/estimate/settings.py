@@ -133,7 +133,13 @@ class RobustSettings(IdentifySettings):
         near or above Nyquist -- is the response of an overdamped mode at this multiple of fs times
         its ``w^2`` [-]; 0: no such term, and a missed mode's quasi-static response is taken up by the
         highest fitted modes' gains and damping, biasing them by several std, see
-        :class:`identification.estimate.varpro.VarPro`).
+        :class:`identification.estimate.varpro.VarPro`), ``residual_max_share`` (the plant does not
+        hold that term: it is kept while its contribution's RMS on the fit rows is at most this
+        multiple of the fitted model's output-error RMS [-] or at most ``residual_max_track`` [track]
+        (half the settle band: a noise-free log has no output error to compare with); beyond both it is not a residual
+        compliance but half of a pair with a fitted mode -- e.g. a broad mode at the frequency bound
+        and a compliance of opposite sign that together build the phase of an amplifier lag -- and the
+        plant without it would not be the model fitted, so the final stage is refined without it).
     Repeatable run-out
         ``periodic`` (``"auto"``: detected; None: none; or the period [samples]),
         ``periodic_harmonics`` (harmonics fitted), ``periodic_search_samples`` (periods tried by the
@@ -206,6 +212,8 @@ class RobustSettings(IdentifySettings):
     existing_sep_rel: float = 0.02
     scan_idle_rounds: int = 2
     residual_fs_multiple: float = 2.0
+    residual_max_share: float = 1.0
+    residual_max_track: float = 0.05
 
     method = "robust"
 
@@ -231,6 +239,9 @@ class RobustSettings(IdentifySettings):
             raise ValueError(f"ar_order must be a non-negative integer, got {self.ar_order!r}")
         if not (self.residual_fs_multiple == 0 or self.residual_fs_multiple > 0.5):
             raise ValueError(f"residual_fs_multiple must be 0 or above 0.5 (above Nyquist), got {self.residual_fs_multiple!r}")
+        for name in ("residual_max_share", "residual_max_track"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be positive, got {getattr(self, name)!r}")
         for name in ("scan_step_rel", "scan_step_zeta"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)!r}")

@@ -136,6 +136,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--stroke", type=float, metavar="TRACK",
                    help="full stroke [track] (default: the plant's meta stroke_mm / stroke_track); longer seeks "
                         "are refused")
+    s.add_argument("--rest-to-rest-up-to", type=float, default=None, metavar="TRACK",
+                   help="design seeks up to this length by the rest-to-rest QP (settles sooner, cost grows with the "
+                        "length) instead of the acceleration step (default: from its shortest seek on, ~1600 tracks "
+                        "on the bundled drive)")
     s.add_argument("--start-track", type=float, default=None, metavar="TRACK",
                    help="track the seek starts from (default: the middle of the plant's position_range_track, 0 "
                         "without one); a plant with position-dependent effects never extrapolates beyond that range")

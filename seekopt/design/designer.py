@@ -37,7 +37,7 @@ import numpy as np
 
 from identification.model.plant import ModalPlant
 
-from seekopt.design import guard as _guard, qp as _qp
+from seekopt.design import blind_pes as _blind, guard as _guard, qp as _qp
 from seekopt.design.blas import blas_limit
 from seekopt.design.predict import set_loop_maps
 from seekopt.design.metrics import DEFAULT_TAIL_S
@@ -115,6 +115,7 @@ class SeekDesigner:
         self.objective_kind = self.robust.objective if self.robust else "worst"
         self.ignored_effects = [e.name for e in p.plant.effects if e.kind != "structural"]
         self._maps, self._maps_h = None, 0
+        self._bpes, self._bpes_h = [], 0      # blind-band mode's PES maps (_blind_pes)
         self._qps: dict = {}
         self._ws: dict = {}             # working-set solver per structure
         self._history: dict = {}        # n_rigid -> designed settle samples (predicts the next length)
@@ -138,6 +139,15 @@ class SeekDesigner:
             self.map_builds += 1
         return self._maps
 
+    def _blind_pes(self, horizon: int) -> list:
+        """The blind-band mode's PES maps (:func:`seekopt.design.blind_pes.blind_pes_maps`) of the design
+        plant, ``horizon`` samples long (kept with the loop maps' horizon)."""
+        if self._bpes_h < horizon:
+            f, g = _blind.blind_pes_freqs(self.guard_bands, self.problem.blind_pes_points)
+            self._bpes = _blind.blind_pes_maps(self.plant, self.controller, horizon, f, g)
+            self._bpes_h = horizon
+        return self._bpes
+
     def _count_solver(self, name: str) -> None:
         self.solver_builds[name] += 1
 
@@ -157,12 +167,14 @@ class SeekDesigner:
             hf = _guard.design_guard_rows(self.guard_bands, self.plant.k0, self.fs, nmax + in_tail, H, maps[0],
                                           curve=self.guard_curve)
             band_plants = range(len(self.plants)) if self.objective_kind == "worst" else [0]
+            bpes_tol = self.problem.blind_pes_bound()
+            bpes = self._blind_pes(self._maps_h) if bpes_tol is not None and not epigraph else None
             s = self.settings
             self._qps[key] = _qp.SeekQP(
                 maps, nmax, H, self.imax, self.settle, self.fs, band_plants,
                 lambda n, m: SolverChain(n, m, s.chain, s.options, builds=self._count_solver),
                 epigraph=epigraph, R=R, hf=hf, slew=self.slew, stride=self._stride(nmax),
-                input_tail=in_tail)
+                input_tail=in_tail, bpes=bpes, bpes_tol=bpes_tol if bpes else None)
             self.builds += 1
         return self._qps[key]
 

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from identification.model.effects import effect_from_dict
 from identification.model.plant import ModalPlant
 
 from seekopt.design.metrics import seek_metrics
@@ -35,7 +36,7 @@ from seekopt.design.profiles import Profile
 from seekopt.drive.simulator import simulate_2dof
 
 __all__ = ["StartError", "position_dependent_effects", "fitted_range", "resolve_start", "hold_current",
-           "play_seek", "HoldCheck", "hold_check", "nonlinear_effects", "compensate"]
+           "play_seek", "HoldCheck", "hold_check", "nonlinear_effects", "compensate", "kt_scaled"]
 
 #: Positions [track] at which an effect's hooks are compared to find position dependence.
 _PROBE_TRACKS = (-1.0e5, -1.3e4, 0.0, 7.7e3, 2.9e4, 6.1e4, 1.0e5)
@@ -109,6 +110,29 @@ def resolve_start(plant: ModalPlant, tracks: float, start_track: float | None = 
                 raise StartError(f"{source}: seek {what} at track {p:g} is outside the range the effects "
                                  f"({', '.join(dep)}) were fitted on, [{rng[0]:g}, {rng[1]:g}]")
     return start
+
+
+def kt_scaled(plant: ModalPlant, factor: float) -> ModalPlant:
+    """``plant`` on a drive whose torque constant is ``factor`` times the plant's, the forces [N] unchanged.
+
+    The rigid-body gain ``k0`` [track/(A s^2)] is multiplied by ``factor``; every current-equivalent force
+    (``bias_a`` and the parameters in A -- names ending ``_a`` or holding ``_a_per`` -- of the force effects:
+    position bias, friction) is divided by it, so that ``k0 * force`` stays; input effects (``Kt(x)``
+    relative to its nominal, the amplifier's current limit) and the modes' relative gains are kept.
+    The plants the effect-aware design holds its current headroom on
+    (:attr:`seekopt.design.nlp_problem.NLPSettings.kt_uncertainty`)."""
+    f = float(factor)
+    if not (math.isfinite(f) and f > 0):
+        raise ValueError(f"torque-constant factor must be positive, not {factor!r}")
+    effects = []
+    for e in plant.effects:
+        if e.kind == "force":
+            d = e.to_dict()
+            d["params"] = {k: (np.asarray(v, float) / f).tolist() if (k.endswith("_a") or "_a_per" in k) else v
+                           for k, v in d["params"].items()}
+            e = effect_from_dict(d)
+        effects.append(e)
+    return plant.copy(k0=plant.k0 * f, bias_a=plant.bias_a / f, effects=effects)
 
 
 def hold_current(plant: ModalPlant, position: float, dt: float, limit_a: float = 10.0) -> float:

@@ -37,120 +37,56 @@ whatever the coast; every seek is checked on the full design plant by
 Shorter seeks (no room for a coast) go to :class:`seekopt.design.designer.SeekDesigner`; its peak rigid
 velocity is checked against the limit.
 
-Velocity limit from the plant (``ModalPlant.meta`` keys, SI units)
-------------------------------------------------------------------
-``vmax_mps``
-    Velocity limit at the head [m/s].
-``back_emf_v_per_mps`` and ``supply_v`` (optional ``coil_resistance_ohm``, default 0)
-    Back-EMF constant at the head [V/(m/s)] and amplifier supply [V]: the amplifier still drives ``Imax``
-    up to ``vmax = (supply_v - coil_resistance_ohm * Imax) / back_emf_v_per_mps``.
-``stroke_mm`` (or ``stroke_track``)
-    Full stroke [mm] (or [track] at the plant's track pitch).
-Velocities in m/s become track/s with the plant's ``track_pitch_nm``.
+Long seeks below the coast at ``vmax`` (or without a velocity limit): the acceleration step
+-------------------------------------------------------------------------------------------
+A velocity step per velocity would make the cost grow with the length (its QP grows with the velocity: a
+step to 1.1e7 track/s, the bang-bang peak of 1e5 tracks, took 45 s CPU).  Instead one *acceleration step*
+(:mod:`seekopt.design.accel_step`: from rest onto the constant-current parabola ``I0``, one bisection of
+small QPs on the problem's set, kept) gives every such seek as four shifted copies,
+``u = s (u_J(k) - u_J(k-n) - u_J(k-m) + u_J(k-m-n))``, rest-to-rest exact (``s c I0 n m = K``).
+
+**The dispatch rule** (:meth:`LongSeekDesigner.design`, the rule of ``seekopt design``):
+
+1. with ``vmax`` and a seek long enough to coast at it (:meth:`~LongSeekDesigner.needs_coast`): the velocity
+   step to ``vmax`` and its mirror (above);
+2. else, from ``long_from_track = c I0 n_floor^2`` tracks on (``n_floor = 32`` samples at ``I0``: the older
+   terms are on the step's quiet rows; below the step's length ``N_J`` the transitions overlap and a plan
+   is kept only if its nominal current is within ``(1 + gamma) / 2 Imax`` with the hold, as the velocity
+   step's compositions): the acceleration step with ``n <= m``, ``n`` within 3 of the bang-bang
+   ``sqrt(K / (c I0))`` (capped at ``vmax / (fs c I0)``), the one whose four-term error settles first on
+   every plant of the set (linear maps; ties: nominal settle, then ``m + n``); verified on the design plant
+   by simulation (Imax, settled by the predicted sample); seeks up to ``LongSeekSpec.rest_to_rest_up_to_track``
+   (``--rest-to-rest-up-to``) stay with the rest-to-rest QP, which settles sooner at a cost that grows
+   with the length;
+3. else the rest-to-rest QP (:class:`~seekopt.design.designer.SeekDesigner`), its peak velocity checked
+   against ``vmax``.
+
+On the bundled drive ``long_from_track`` is 1627 tracks (``N_J`` = 30 nominal, 46 robust); when no plan
+near the bang-bang ``n`` settles on every plant (none measured), the rest-to-rest QP designs the seek.
+
+The velocity limit and the stroke from the plant's metadata: :mod:`seekopt.design.longseek_spec`.
 """
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
 
 import numpy as np
 
-from identification.model.plant import ModalPlant
-
 from seekopt.design import guard as _guard
 from seekopt.design.predict import set_loop_maps
+from seekopt.design.accel_step import AccelStep, AccelStepQP, plan_seek
+from seekopt.design.longseek_spec import (I0_FRACTION, LongSeekError, LongSeekSpec, stroke_from_plant,
+                                          t_accel_coast_decel, vmax_from_plant)
 from seekopt.design.search import bisect_length
 from seekopt.design.velocity_step import StepQP, VelocityStep
 
-__all__ = ["LongSeekSpec", "VelocityStep", "LongSeekDesigner", "LongSeekError", "vmax_from_plant",
-           "stroke_from_plant", "t_accel_coast_decel"]
+#: The acceleration step's error bound on the nominal plant from 32 samples after the step, as a fraction
+#: of the band margin (:class:`~seekopt.design.accel_step.AccelStepQP` ``quiet``).
+ACCEL_QUIET = 0.1
 
-
-class LongSeekError(ValueError):
-    """Bad long-seek settings (one-line message)."""
-
-
-def _pos(v, what):
-    if v is not None and not (math.isfinite(v) and v > 0):
-        raise LongSeekError(f"{what} must be a positive number (got {v})")
-    return None if v is None else float(v)
-
-
-def vmax_from_plant(plant: ModalPlant, imax: float) -> float | None:
-    """Velocity limit [track/s] from the plant's metadata (module notes), or None."""
-    m, pitch = plant.meta or {}, plant.track_pitch_nm
-    try:
-        if "vmax_mps" in m:
-            v = float(m["vmax_mps"])
-        elif "back_emf_v_per_mps" in m and "supply_v" in m:
-            v = (float(m["supply_v"]) - float(m.get("coil_resistance_ohm", 0.0)) * imax) / float(
-                m["back_emf_v_per_mps"])
-        else:
-            return None
-    except (TypeError, ValueError):
-        raise LongSeekError("plant meta: velocity-limit keys must be numbers") from None
-    if not pitch:
-        raise LongSeekError("plant meta gives a velocity limit in m/s but the plant has no track_pitch_nm")
-    if not (math.isfinite(v) and v > 0):
-        raise LongSeekError(f"plant meta: velocity limit {v:g} m/s is not positive (supply below R*Imax?)")
-    return v / (pitch * 1e-9)
-
-
-def stroke_from_plant(plant: ModalPlant) -> float | None:
-    """Full stroke [track] from ``meta["stroke_track"]`` or ``meta["stroke_mm"]`` (module notes), or None."""
-    m = plant.meta or {}
-    try:
-        if "stroke_track" in m:
-            return _pos(float(m["stroke_track"]), "plant meta stroke_track")
-        if "stroke_mm" in m and plant.track_pitch_nm:
-            return _pos(float(m["stroke_mm"]) * 1e6 / plant.track_pitch_nm, "plant meta stroke_mm")
-    except (TypeError, ValueError):
-        raise LongSeekError("plant meta: stroke must be a number") from None
-    return None
-
-
-def t_accel_coast_decel(tracks: float, k0: float, imax: float, vmax: float | None) -> float:
-    """Rigid-body minimum seek time [s] with current limit ``imax`` and velocity limit ``vmax`` [track/s]:
-    ``K / vmax + vmax / (k0 Imax)`` when the seek reaches ``vmax``, else ``T_bb = 2 sqrt(K / (k0 Imax))``."""
-    a, K = k0 * imax, abs(tracks)
-    if vmax is None or K <= vmax * vmax / a:
-        return 2.0 * math.sqrt(K / a)
-    return K / vmax + vmax / a
-
-
-@dataclass
-class LongSeekSpec:
-    """Long-seek settings.
-
-    Parameters
-    ----------
-    vmax_track_s : float, optional
-        Velocity limit [track/s] (None: none; :meth:`from_plant` reads the plant's metadata).
-    stroke_track : float, optional
-        Full stroke [track]: longer seeks are refused.
-    """
-
-    vmax_track_s: float | None = None
-    stroke_track: float | None = None
-
-    def __post_init__(self):
-        self.vmax_track_s = _pos(self.vmax_track_s, "vmax")
-        self.stroke_track = _pos(self.stroke_track, "stroke")
-
-    @classmethod
-    def from_plant(cls, plant: ModalPlant, imax: float, vmax_track_s=None, stroke_track=None):
-        """Explicit values win over the plant's metadata (module notes)."""
-        v = vmax_track_s if vmax_track_s is not None else vmax_from_plant(plant, imax)
-        s = stroke_track if stroke_track is not None else stroke_from_plant(plant)
-        return cls(v, s)
-
-    def to_dict(self) -> dict:
-        return {"vmax_track_s": self.vmax_track_s, "stroke_track": self.stroke_track}
-
-    @classmethod
-    def from_dict(cls, d: dict) -> "LongSeekSpec":
-        return cls(d.get("vmax_track_s"), d.get("stroke_track"))
+__all__ = ["LongSeekSpec", "VelocityStep", "AccelStep", "LongSeekDesigner", "LongSeekError", "vmax_from_plant",
+           "stroke_from_plant", "t_accel_coast_decel", "I0_FRACTION"]
 
 
 class LongSeekDesigner:
@@ -198,6 +134,8 @@ class LongSeekDesigner:
         self.tail = p.band_tail_samples()
         self._short = short_designer
         self._steps: dict = {}
+        self._accel: AccelStep | None = None
+        self.accel_quiet = ACCEL_QUIET
         self._maps, self._maps_h = None, 0
         self._nominal = None
 
@@ -302,6 +240,100 @@ class LongSeekDesigner:
             m_ok = m
         return int(S), int(m_ok)
 
+    # ------------------------------------------------------------------ the acceleration step
+    def _lim(self) -> float:
+        """The seek's current limit without the hold, ``gamma Imax - |bias|`` [A]."""
+        return self.gamma * self.imax - abs(self.plant.bias_a)
+
+    def accel_step(self) -> AccelStep:
+        """The shortest acceleration step (:mod:`seekopt.design.accel_step`) on the problem's set, designed
+        once (one bisection of small QPs) and kept: every seek from :meth:`long_from_track` on is built
+        from it.  ``I0 = I0_FRACTION lim / max(1, max_i k0 / k0_i)`` so that every plant's steady current is within
+        ``lim``."""
+        if self._accel is not None:
+            return self._accel
+        from seekopt.design.metrics import settle_index
+        from seekopt.design.qp import LoopMaps
+        t0 = time.process_time()
+        lim = self._lim()
+        k0s = [float(q.k0) for q in self.plants]
+        i0 = I0_FRACTION * lim / max(1.0, max(self.plant.k0 / k for k in k0s))
+        lo, nmax, best, qp, n_solves = 1, 48, None, None, 0
+        hf_tol = None
+        while nmax <= 512:
+            H = nmax + self.tail
+            maps = self._loop_maps(H)
+            rows = _guard.design_guard_rows(self.guard_bands, self.plant.k0, self.fs, nmax, H, maps[0],
+                                            curve=self.guard_curve)
+            if rows is not None:        # accel_step notes: four transitions, one-sample differences
+                hf_tol = self.hf_tol * 2 * float(np.min(np.abs(np.sin(np.pi * rows[1] / self.fs)))) / 4
+            qp = AccelStepQP(maps, k0s, nmax, H, self.plant.k0, self.fs, self.plant.total_delay_s * self.fs,
+                             self.imax, i0, self.settle, lo, self.problem.solver,
+                             hf=None if rows is None else rows[0], quiet=self.accel_quiet)
+            sol = qp.solve(nmax, self.beta, lim, hf_tol); n_solves += 1
+            if sol.success:
+                best = sol
+                break
+            lo, nmax = nmax, int(math.ceil(1.5 * nmax))
+        if best is None:
+            raise LongSeekError("no acceleration step within 512 samples")
+        solves = []
+
+        def probe(n, warm=None, confirm=True):     # the step QP decides on the whole problem
+            solves.append(n)
+            return qp.solve(n, self.beta, lim, hf_tol, x0=warm)
+        hi, best = bisect_length(probe, lo, nmax, best, lambda n: False)
+        n_solves += len(solves)
+        u, off, delta = qp.unpack(best.x, hi)
+        st = AccelStep(u, i0, off, delta, qp.c, qp.delay, self.fs,
+                       meta={"design_samples": hi, "qp_solves": n_solves})
+        Hc = hi + 4 * self.tail        # the nominal linear loop: error and currents until they die out
+        if self._nominal is None or self._nominal.horizon < Hc:
+            self._nominal = LoopMaps(self.plant, self.controller, 2 * Hc)
+        mp = self._nominal
+        uu, rr = st.extended(Hc)
+        e = np.convolve(mp.y_u[:Hc], uu)[:Hc] + np.convolve(mp.y_r[:Hc], rr)[:Hc] - rr
+        if np.max(np.abs(e[-self.tail:])) > 0.01 * self.settle:
+            raise LongSeekError(f"acceleration step: the loop has not caught the parabola {Hc} samples later")
+        st.error_track = np.r_[e, 0.0]
+        if len(self.plants) > 1:      # every plant of the set (calibrated maps), for the plan's worst case
+            es = [np.convolve(q.y_u[:Hc], uu)[:Hc] + np.convolve(q.y_r[:Hc], rr)[:Hc] - rr
+                  for q in self._loop_maps(Hc)[1:]]
+            st.set_error_track = np.vstack([np.r_[x, 0.0] for x in es])
+        st.current_sub_a = np.stack([np.convolve(mp.i_u[:Hc, l], uu)[:Hc] + np.convolve(mp.i_r[:Hc, l], rr)[:Hc]
+                                     for l in range(self.L)], axis=1)
+        st.settle_samples = int(max(settle_index(e, self.settle) or 0, hi))
+        st.meta["design_cpu_s"] = time.process_time() - t0
+        self._accel = st
+        return st
+
+    def n_floor(self) -> int:
+        """Fewest samples at ``I0`` of a built seek: the quiet rows' delay (32 samples; shorter than the step,
+        the transitions overlap: :func:`~seekopt.design.accel_step.plan_seek` checks the current)."""
+        return 32
+
+    def long_from_track(self) -> float:
+        """Shortest seek built from the acceleration step: ``c I0 n_floor^2`` [track] (``n = m = n_floor``)."""
+        return self.accel_step().accel_track * self.n_floor() ** 2
+
+    def _is_long(self, K: float) -> bool:
+        """The dispatch rule (module notes): from :meth:`long_from_track` on (cheap test first: below
+        ``c lim 32^2`` no step is designed)."""
+        if abs(K) < self._long_lower_bound():
+            return False
+        r2r = self.spec.rest_to_rest_up_to_track
+        if r2r is not None and abs(K) <= r2r:
+            return False
+        return abs(K) >= self.long_from_track()
+
+    def _long_lower_bound(self) -> float:
+        """``c I0_FRACTION lim 32^2`` [track]: no shorter seek is built from the step (``I0 <= I0_FRACTION lim``)."""
+        return self.plant.k0 / self.fs ** 2 * I0_FRACTION * self._lim() * 32 ** 2
+
+    def _n_vmax(self) -> float:
+        v = self.spec.vmax_track_s
+        return math.inf if v is None else v / self.fs / self.accel_step().accel_track
+
     # ------------------------------------------------------------------ seeks
     def needs_coast(self, tracks: float) -> bool:
         """True when a velocity limit is set and the seek is long enough to coast at it."""
@@ -344,15 +376,18 @@ class LongSeekDesigner:
         if self.spec.stroke_track is not None and abs(K) > self.spec.stroke_track:
             raise LongSeekError(f"seek of {K:g} tracks is longer than the stroke ({self.spec.stroke_track:g} tracks)")
         v = self.spec.vmax_track_s
-        if v is None or abs(K) < 0.9 * v * v / (self.plant.k0 * self.imax):
-            self.short_designer().check_seek(K)
+        if abs(K) < self._long_lower_bound() and (
+                v is None or abs(K) < 0.9 * v * v / (self.plant.k0 * self.imax)):
+            self.short_designer().check_seek(K)      # only the rest-to-rest designer can take it
         return K
 
     def design(self, tracks: float):
         """Design the seek of ``tracks`` tracks -> :class:`seekopt.design.designer.DesignResult`.
 
-        With a coast: the composition of the velocity step at ``vmax`` (module notes), verified by
-        simulation; without: the rest-to-rest designer, its rigid peak velocity checked against ``vmax``.
+        The dispatch rule of the module notes: a coast at ``vmax``: the velocity step at ``vmax`` and its
+        mirror; else from :meth:`long_from_track` on: four copies of the acceleration step; else (or when no
+        plan settles on every plant) the rest-to-rest designer, its rigid peak velocity checked against
+        ``vmax``.  Every long seek is verified by simulation on the design plant.
         """
         from seekopt.design.designer import DesignError, DesignResult
         from seekopt.design.metrics import evaluate_profile
@@ -360,7 +395,14 @@ class LongSeekDesigner:
         K = self.check_seek(tracks)
         t0 = time.process_time()
         vmax = self.spec.vmax_track_s
-        if not self.needs_coast(K):
+        coast = self.needs_coast(K)
+        fresh = self._accel is None          # the step's QPs count for the design that builds it
+        if not coast and self._is_long(K):
+            plan = plan_seek(self.accel_step(), K, self.n_floor(), self._n_vmax(), self.settle,
+                             current_limit_a=0.5 * (1 + self.gamma) * self.imax - abs(self.plant.bias_a))
+            if plan is not None:
+                return self._design_accel(K, *plan, t0=t0, fresh=fresh)
+        if not coast:
             res = self.short_designer().design(K)
             if vmax is None:
                 return res
@@ -387,6 +429,43 @@ class LongSeekDesigner:
         return DesignResult(prof, metrics, "verified", time.process_time() - t0, self.solver,
                             "long_seek", settle_samples=m + step.settle_samples,
                             n_solves=int(step.meta["qp_solves"]))
+
+
+    def _design_accel(self, K: float, n: int, m: int, k_pred: int, k_set: int, t0: float, fresh: bool):
+        """The seek of ``K`` tracks from four acceleration steps (module notes), verified by simulation."""
+        from seekopt.design.designer import DesignError, DesignResult
+        from seekopt.design.metrics import evaluate_profile
+        from seekopt.design.profiles import Profile
+        st = self.accel_step()
+        u, r, s = st.compose(K, n, m)
+        vpk = rigid_peak_velocity(u, self.plant.k0, self.fs)
+        vmax = self.spec.vmax_track_s
+        if vmax is not None and vpk > vmax * (1 + 1e-9):
+            raise DesignError(f"long seek of {K:g} tracks: rigid velocity {vpk:.4g} track/s above vmax")
+        meta = {"plant_hash": self.plant.hash(), "controller_hash": self.controller.hash(),
+                "design_objective": "long_seek/accelerate-coast-arrive (acceleration steps)",
+                "accel_samples": n, "coast_samples": m - n, "coast_velocity_track_s": vpk, "vmax_track_s": vmax,
+                "step_samples": st.n, "robust": self.robust.to_string() if self.robust else "none",
+                "design_settle_samples": k_pred, "set_settle_samples_predicted": k_set,
+                "peak_rigid_velocity_track_s": vpk}
+        prof = Profile(np.r_[u, 0.0], np.r_[r, K], self.fs, K, self.imax, self.settle, "long_seek",
+                       int(np.max(np.nonzero(u)[0]) + 1), meta)
+        metrics = evaluate_profile(self.plant, self.controller, prof, settle=self.settle)
+        if not metrics.peak_current_a <= self.imax * (1 + 1e-9):
+            raise DesignError(f"long seek of {K:g} tracks exceeds Imax in simulation ({metrics.peak_current_a:.4g} A)")
+        if not metrics.settle_time_s * self.fs <= k_pred + 1 + 1e-9:
+            raise DesignError(f"long seek of {K:g} tracks does not settle by sample {k_pred} "
+                              f"({metrics.settle_time_s * self.fs:.1f})")
+        prof.meta["design_status"] = "verified"
+        guard = None
+        if self.guard_bands:       # not a constraint of the step (accel_step notes): measured and reported
+            guard = _guard.guard_report(self.plant, self.controller, prof, self.guard_bands, self.settle,
+                                        curve=self.guard_curve)
+            prof.meta.update(guard.to_meta())
+        n_solves = int(st.meta["qp_solves"]) if fresh else 0
+        return DesignResult(prof, metrics, "verified", time.process_time() - t0, self.solver,
+                            "long_seek", settle_samples=k_pred, n_solves=n_solves, set_settle_samples=k_set,
+                            guard=guard)
 
 
 def rigid_peak_velocity(current_a, k0: float, fs: float) -> float:

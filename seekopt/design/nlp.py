@@ -37,9 +37,10 @@ from identification.model.plant import ModalPlant
 
 from seekopt.design import guard as _guard
 from seekopt.design.designer import DesignResult, SeekDesigner
-from seekopt.design.feasibility import (compensate, hold_check, hold_current, nonlinear_effects, play_seek,
-                                        resolve_start)
+from seekopt.design.feasibility import (compensate, hold_check, hold_current, kt_scaled, nonlinear_effects,
+                                        play_seek, resolve_start)
 from seekopt.design.metrics import SeekMetrics
+from seekopt.design.predict import set_loop_maps
 from seekopt.design.nlp_search import _search_length, _stretch, _verified_samples
 from seekopt.design.nlp_problem import (BUILD_COUNT, NLPSettings, NLPSolve, RobustSpread, SeekNLP,
                                         close_sample, closed_loop_sample)
@@ -95,6 +96,10 @@ class NLPDesignResult:
     def ipopt_time_s(self) -> float:
         return sum(s.wall_s for s in self.solves)
 
+    @property
+    def ipopt_cpu_s(self) -> float:
+        return sum(s.cpu_s for s in self.solves)
+
 
 # ------------------------------------------------------------------------------- designer
 class EffectAwareDesigner:
@@ -126,6 +131,11 @@ class EffectAwareDesigner:
         self.fs, self.L = float(controller.sample_rate_hz), int(controller.fast_multiple)
         self.nlp_plant = plant.copy(effects=[e for e in plant.effects if e.kind != "output"])
         self.robust = robust
+        # the current headroom: the drive's torque constant may differ from the plant's by kt_u (a fraction);
+        # the NLP holds its current rows, the full-plant check Imax, on the plant with its gain scaled so
+        std_k0 = float((plant.std or {}).get("k0") or 0.0)
+        self.kt_u = max(self.settings.kt_uncertainty, 3.0 * std_k0 / plant.k0) if self.settings.kt_uncertainty > 0 else 0.0
+        self.kt_plants = [kt_scaled(self.nlp_plant, 1.0 + s * self.kt_u) for s in (-1.0, 1.0)] if self.kt_u > 0 else []
         tail = {} if self.settings.tail_s is None else {"tail_s": self.settings.tail_s}
         self.problem = SeekProblem(plant.linear_part(), controller, imax, settle,
                                    band_margin=self.settings.band_margin,
@@ -136,9 +146,13 @@ class EffectAwareDesigner:
         # band rows after the seek: the linear designer's horizon (one rule, SeekProblem.band_tail_samples);
         # the full-plant acceptance holds the rows' margin over the same samples
         self.tail = self.accept_tail = self.linear.tail
+        # the feedforward and reference may run input_tail samples past the settle sample (the linear designer's
+        # rule, SeekProblem.input_tail_s): an NLP of n samples settles by n, at rest from n + tin
+        self.tin = int(self.linear.input_tail)
         self._nlps: dict = {}
         self._spreads: dict = {}
         self._derated: dict = {}
+        self.kt_peak_a = math.nan
 
     def _set_maps(self, c: int) -> list:
         """The robust set's closed-loop maps for the size class ``c``: the linear designer's
@@ -149,16 +163,19 @@ class EffectAwareDesigner:
 
     def _nlp(self, n: int):
         """``(SeekNLP, RobustSpread or None)`` of the size class of ``n`` samples (built on first use)."""
-        c = next((c for c in self.sizes if c >= n), None)
+        c = next((c for c in self.sizes if c >= n + self.tin), None)   # the input runs input_tail samples more
         if c is None or c > self.settings.max_samples:
             raise NLPDesignError(f"seek of {n} samples is longer than the largest NLP "
                                  f"({self.settings.max_samples} samples)")
         if c not in self._nlps:
             maps = self._set_maps(c)
-            if len(self.linear.plants) > 1:
+            # the torque-constant headroom: current rows only, on the linear loop with the gain scaled
+            kt_maps = set_loop_maps([p.linear_part() for p in self.kt_plants], self.controller, maps[0].horizon) \
+                if self.kt_plants else []
+            if len(self.linear.plants) > 1 or kt_maps:
                 prev = max([k for k in self.sizes if k < c], default=0)
-                self._spreads[c] = RobustSpread(maps, c, c + self.tail, self.settle, nmax_prev=prev,
-                                                stride=self.linear._stride(c))
+                self._spreads[c] = RobustSpread(maps + kt_maps, c, c + self.tail, self.settle, nmax_prev=prev,
+                                                stride=self.linear._stride(c), current_only=len(kt_maps))
             # the linear designer's unmodelled-mode guard: same bands, rows and horizon, on the nominal
             # linear loop
             guard, Hq = None, c + self.linear.tail
@@ -202,10 +219,43 @@ class EffectAwareDesigner:
         dp = self.nlp_plant.discretize(dt)
         dp.reset(T0, 0.0, current=uh)
         x0 = np.r_[dp.x, dp.hist, np.zeros(self.controller.n_states)]
-        n0 = int(warm.settle_samples)
-        v_w, q_w = comp.current_a[:n0] / self.imax, (warm.profile.reference_track[:n0] - K) / abs(K)
+        n0, tin = int(warm.settle_samples), self.tin
+        # the whole warm start: the linear design's input runs input_tail samples past its settle sample (its
+        # band rows hold from n0); cut at n0 (the former rule) it lost the end of the deceleration (up to
+        # 0.17 A over 8 samples on the combination drive's K = 200): 4.7 band of guard residual, and the NLPs
+        # started from it at other lengths stopped at residuals that rose with the length
+        m_w = int(warm.profile.seek_samples)
+        v_w, q_w = comp.current_a[:m_w] / self.imax, (warm.profile.reference_track[:m_w] - K) / abs(K)
+        g_w, o_w = g_w[:m_w], o_w[:m_w]
         solves: list = []
+        imaps: dict = {}                 # the guard's input map (gain, offset) each length's NLP used
         cache: dict = {}
+
+        def _warm_for(n, nmax):
+            """The NLP's starting feedforward and reference for a seek of ``n`` samples (length ``nmax``), and
+            the input map ``(gain, offset)`` along it for the guard rows.
+
+            A shorter seek's NLP answer at rest from ``m < n`` on is a seek of ``n`` samples as it is, with the
+            same worst residual after ``n`` or less: padded with rest, the best of them (lowest residual) starts
+            the NLP, so that the residual the search reads cannot rise with the length.  Time-stretching it
+            instead (the former rule, and still the rule going down) started the NLP at 54 and 62 samples
+            of the combination drive's K = 200 from 50 % far from the 50-sample answer and Ipopt stopped in
+            a worse point: residual 0.80 / 1.32 / 1.36 band at 50 / 54 / 62 samples.  Without a shorter answer:
+            the nearest feasible length, else the warm start, time-stretched to ``n`` samples."""
+            below = [m for m, (_, _, _, res) in cache.items() if m < n and math.isfinite(res)]
+            if below:
+                m = min(below, key=lambda m: (cache[m][3], -m))
+                g, o = imaps[m]            # and its guard's input map, padded at rest: the same guard rows
+                return (np.r_[cache[m][1], np.zeros(nmax - len(cache[m][1]))],
+                        np.r_[cache[m][2], np.zeros(nmax - len(cache[m][2]))],
+                        (np.r_[g, np.ones(n + tin - len(g))], np.r_[o, np.zeros(n + tin - len(o))]))
+            ok_prev = [m for m, (ok, *_ ) in cache.items() if ok]
+            m = min(ok_prev, key=lambda m: abs(m - n)) if ok_prev else n0
+            vb, qb, (g, o) = (cache[m][1], cache[m][2], imaps[m]) if ok_prev else (v_w, q_w, (g_w, o_w))
+            a, b = len(vb), n + tin                                   # input lengths
+            return (np.r_[_stretch(vb, a, b) * (a / b) ** 2, np.zeros(nmax - b)],   # same distance in n samples
+                    np.r_[_stretch(qb, a, b), np.zeros(nmax - b)],
+                    (_stretch(g, len(g), b), _stretch(o, len(g), b) * (len(g) / b) ** 2))   # the plan, time-stretched
 
         def feasible(n, checking=False):
             # ``max_nlps`` bounds the length search; the full-plant check's step-up (at most ``check_steps``
@@ -219,13 +269,9 @@ class EffectAwareDesigner:
             if not checking and len(solves) >= st.max_nlps and any(ok for ok, *_ in cache.values()):
                 raise _Budget()
             nlp, spread = self._nlp(n)
-            ok_prev = [m for m, (ok, *_ ) in cache.items() if ok]
-            m = min(ok_prev, key=lambda m: abs(m - n)) if ok_prev else n0
-            vb, qb = (cache[m][1], cache[m][2]) if ok_prev else (v_w, q_w)
-            v0 = np.r_[_stretch(vb, m, n) * (m / n) ** 2, np.zeros(nlp.N - n)]   # same distance in n samples
-            q0 = np.r_[_stretch(qb, m, n), np.zeros(nlp.N - n)]
-            imap = (_stretch(g_w, n0, n), _stretch(o_w, n0, n) * (n0 / n) ** 2)   # the plan, time-stretched
-            rec, v, q = nlp.solve(K, T0, n, self.imax, uh, x0, v0, q0, st.band_margin, st.current_margin,
+            v0, q0, imap = _warm_for(n, nlp.N)
+            imaps[n] = imap
+            rec, v, q = nlp.solve(K, T0, n, self.imax, uh, x0, v0, q0, st.band_margin, st.current_margin, input_tail=tin,
                                   input_map=imap)
             solves.append(rec)
             # an Ipopt failure or time-out at one length shows nothing about it: that length is not shown
@@ -234,11 +280,11 @@ class EffectAwareDesigner:
                 _, e, i = nlp.rollout(x0, v, q, K, T0, self.imax, uh)
                 dE, _ = spread.spread(v, q, K, self.imax)
                 rec.residual = max(rec.residual, float(np.max(np.abs(e[n:] + np.vstack([0 * e, dE])[:, n:]))))
-            say(f"  NLP N={n}: {rec.status}, {rec.iterations} it, {rec.wall_s:.2f} s, residual {rec.residual:.3g} band, "
+            say(f"  NLP N={n}: {rec.status}, {rec.iterations} it, {rec.wall_s:.2f} s ({rec.cpu_s:.2f} s CPU), residual {rec.residual:.3g} band, "
                 f"current slack {rec.slack:.2g}, guard excess {rec.guard_excess:.2g} band")
             good = rec.success and rec.residual <= st.band_margin * (1 + 1e-6) and rec.slack <= st.slack_tol
             res = rec.residual if rec.slack <= st.slack_tol else max(rec.residual, st.band_margin * (1 + rec.slack))
-            cache[n] = (good, v[:n], q[:n], res)
+            cache[n] = (good, v[:n + tin], q[:n + tin], res)
             return good
 
         # the linear design, accepted on the full plant by the same rule (_accept: the length from which it
@@ -274,14 +320,16 @@ class EffectAwareDesigner:
             if n_ok == n:
                 rec = next(s for s in reversed(solves) if s.n_seek == n)
                 prof.meta.update(guard_excess_band=round(rec.guard_excess, 4),
-                                 warm_start_imax_a=round(warm.profile.imax_a, 5))
+                                 warm_start_imax_a=round(warm.profile.imax_a, 5),
+                                 peak_current_kt_a=round(self.kt_peak_a, 5))
                 prof.meta.update(design_status="verified", design_path="nlp", ipopt_iterations=sum(s.iterations for s in solves),
-                                 ipopt_time_s=round(sum(s.wall_s for s in solves), 3), n_nlp=len(solves))
+                                 ipopt_time_s=round(sum(s.wall_s for s in solves), 3),
+                         ipopt_cpu_s=round(sum(s.cpu_s for s in solves), 3), n_nlp=len(solves))
                 return NLPDesignResult(prof, m, T0, n, solves, lin, lin_m,
                                        sum(p.build_time_s for p in self._nlps.values()))
             say(f"  N={n}: full-plant check failed (settle {m.settle_time_s * 1e3:.3f} ms, "
-                f"peak {m.peak_current_a:.4g} A, peak |PES| {held:.3g} band over the {self.accept_tail} samples "
-                f"after the seek, margin {st.band_margin:g})")
+                f"peak {m.peak_current_a:.4g} A ({self.kt_peak_a:.4g} A at Kt x(1 +- {self.kt_u:g})), peak |PES| "
+                f"{held:.3g} band over the {self.accept_tail} samples after the seek, margin {st.band_margin:g})")
         if n_lin is not None:
             return self._linear_result(lin, lin_m, K, T0, n_lin, solves, say)
         raise NLPDesignError(f"no effect-aware design of {K:g} tracks from track {T0:g} passed the full-plant "
@@ -301,7 +349,7 @@ class EffectAwareDesigner:
         m, sim = play_seek(self.nlp_plant, self.controller, prof, T0, settle=self.settle, horizon_s=horizon)
         pes = np.abs(np.asarray(sim.true_position_track, float) - (T0 + K)) / self.settle
         ns = _verified_samples(m, self.fs, self.imax)
-        if ns is None:
+        if ns is None or not self._within_imax_on_kt(prof, T0):
             return m, None, math.inf
         last = len(pes) - tail - 1                 # the last length whose whole window was played
         lengths = [int(n)] if n is not None else range(max(ns - 1, 1), last + 1)
@@ -312,6 +360,15 @@ class EffectAwareDesigner:
                 return m, k, held
         return m, None, held
 
+    def _within_imax_on_kt(self, prof: Profile, T0: float) -> bool:
+        """The current headroom's check: ``prof`` played from ``T0`` on the design plant with its torque constant
+        ``1 +- kt_u`` times the plant's (:func:`~seekopt.design.feasibility.kt_scaled`) stays within Imax on
+        every sub-step; the worst peak [A] is kept in ``self.kt_peak_a`` (for the profile's metadata)."""
+        peaks = [play_seek(p, self.controller, prof, T0, settle=self.settle, horizon_s=0.004)[0].peak_current_a
+                 for p in self.kt_plants]
+        self.kt_peak_a = max(peaks, default=math.nan)
+        return all(pk <= self.imax * (1 + 1e-9) for pk in peaks)
+
     def _linear_result(self, lin: DesignResult, lin_m: SeekMetrics, K, T0, n_lin: int, solves, say):
         """The linear (QP) design as the answer: accepted on the full plant from ``T0`` by the rule every NLP
         design meets (:meth:`_accept`: within Imax, settled by ``n_lin + 1`` samples, the band margin held over
@@ -321,8 +378,9 @@ class EffectAwareDesigner:
         prof = copy.deepcopy(lin.profile)
         prof.meta.update(start_track=T0, direction="outward" if K > 0 else "inward", design_status="verified",
                          design_path="linear (no effect-aware design settled sooner)",
-                         effects_in_design="none", design_settle_samples=n_lin, ipopt_iterations=sum(s.iterations for s in solves),
-                         ipopt_time_s=round(sum(s.wall_s for s in solves), 3), n_nlp=len(solves))
+                         effects_in_design="none", kt_uncertainty=round(self.kt_u, 6), design_settle_samples=n_lin, ipopt_iterations=sum(s.iterations for s in solves),
+                         ipopt_time_s=round(sum(s.wall_s for s in solves), 3),
+                         ipopt_cpu_s=round(sum(s.cpu_s for s in solves), 3), n_nlp=len(solves))
         return NLPDesignResult(prof, lin_m, T0, n_lin, solves, lin, lin_m,
                                sum(p.build_time_s for p in self._nlps.values()))
 
@@ -351,16 +409,17 @@ class EffectAwareDesigner:
         return lin, comp, imap
 
     def _profile(self, v, q, K, T0, n, lin: DesignResult, solves) -> Profile:
-        u = self.imax * np.asarray(v[:n], float)
-        r = K + abs(K) * np.asarray(q[:n], float)
+        u = self.imax * np.asarray(v[:n + self.tin], float)      # input_tail samples past the settle sample
+        r = K + abs(K) * np.asarray(q[:n + self.tin], float)
         meta = {"plant_hash": self.plant.hash(), "controller_hash": self.controller.hash(),
                 "design_objective": "min_settle/nlp", "solver": "ipopt", "reference": "free",
                 "start_track": T0, "direction": "outward" if K > 0 else "inward",
                 "effects_in_design": ";".join(e.name for e in self.nlp_plant.effects) or "none",
                 "robust_warm_start": self.linear.robust.to_string() if self.linear.robust else "none",
                 "band_margin": self.settings.band_margin, "current_margin": self.settings.current_margin,
+                "kt_uncertainty": round(self.kt_u, 6),
                 "design_settle_samples": n, "linear_settle_samples": lin.settle_samples}
         out = [e.name for e in self.plant.effects if e.kind == "output"]
         if out:
             meta["effects_not_in_design"] = ";".join(out)
-        return Profile(np.r_[u, 0.0], np.r_[r, K], self.fs, K, self.imax, self.settle, "optimal-nlp", n, meta)
+        return Profile(np.r_[u, 0.0], np.r_[r, K], self.fs, K, self.imax, self.settle, "optimal-nlp", len(u), meta)

@@ -26,7 +26,7 @@ variable O(1): states scaled by their warm-start excursion, currents in Imax, PE
                                                                   rows on the nominal linear loop, applied to the
                                                                   force the feedforward delivers: g, o the input
                                                                   map linearised along the plan, e.g. g = Kt(x))
-          v = u_ff / Imax in [-1, 1], q = (r - K) / |K| in [-2, 2], both 0 for k >= N (rest at K)
+          v = u_ff / Imax in [-1, 1], q = (r - K) / |K| in [-2, 2], both 0 for k >= N + input_tail (rest at K; the band from N)
 
 The plant is driven by the current variables ``i``, so the effects' curvature couples only the
 head's position, velocity and the current: the exact Hessian is sparse and cheap.  ``N``, the
@@ -91,14 +91,29 @@ class NLPSettings:
     with 344 / 356 / 728 s of Ipopt (:mod:`seekopt.design.nlp_basis`); 64 hats on a 71-sample seek with
     friction took 4.9 s per iteration (24: 0.55 s); ``expand``: evaluate the NLP as SX (slower build, ~10x faster
     derivatives); ``smoothing``: :class:`~identification.model.ops.SmoothingSettings` of the kinks in
-    the NLP (friction sign over at least 20 track/s, saturation corners 2 mA, bias-table corners 50 tracks;
-    the full-plant check is exact); ``friction_step``: the friction sign is smoothed at least over the
+    the NLP (friction sign over at least 20 track/s, saturation corners 2 mA, bias-table corners 5 tracks;
+    the full-plant check is exact: the smoothed corner's error decays only as ``w^2 / distance`` and adds up
+    over a fitted table's knots -- on the combination drive's loop-fitted bias (64 knots 838 tracks apart) the
+    NLP's model of a K = 200 seek from 50 % was 0.0138 track (0.14 band) off the plant at 50 tracks, enough
+    for every candidate the NLP put at the 0.8-band margin to fail the full-plant check at 0.935 band; at 5 tracks
+    1.4e-4 track, at 1 track 5.5e-6); ``friction_step``: the friction sign is smoothed at least over the
     velocity one sub-step of Coulomb force gives, divided by this (:func:`nlp_smoothing`); ``ipopt``:
-    extra Ipopt options."""
+    extra Ipopt options.
+
+    ``kt_uncertainty`` [fraction of the torque constant]: the current headroom of effect-aware designs.  The
+    drive's torque constant may differ from the design plant's by this much (the loop reports no
+    uncertainty of its fitted ``Kt(x)``; on the study's combination drive the fitted ``Kt`` differed from
+    the truth by up to 4 % at the seeks' starts, and a design at 0.97 Imax on the loop's plant drew 0.3010 A
+    of 0.3 A on the truth).  The NLP holds its current rows (``current_margin`` Imax, every sub-step) also
+    on the design plant's linear loop with its gain scaled by ``1 +- u`` (first order around the full-plant
+    trajectory, as the robust set: :class:`RobustSpread` ``current_only``), and the full-plant check plays
+    every candidate on the design plant with its gain scaled so (within Imax).  ``u`` is the larger of
+    this and 3 standard deviations of the plant's reported ``k0``; 0 turns the headroom off."""
 
     tail_s: float | None = None
     band_margin: float = 0.8
     current_margin: float = 0.97
+    kt_uncertainty: float = 0.05
     rho: float = 1e-2
     w_slack: float = 1e3
     slack_tol: float = 1e-4
@@ -121,7 +136,7 @@ class NLPSettings:
     kappa_current: float = 600.0
     expand: bool = False
     smoothing: SmoothingSettings = field(default_factory=lambda: SmoothingSettings(
-        friction_velocity_tps=20.0, saturation_width_a=0.002, table_width_track=50.0))
+        friction_velocity_tps=20.0, saturation_width_a=0.002, table_width_track=5.0))
     ipopt: dict = field(default_factory=dict)
     nlpsol: dict = field(default_factory=dict)
 
@@ -131,7 +146,8 @@ class NLPSolve:
     """One Ipopt call: seek length, status, iterations, wall time [s], worst residual [band]
     (over the robust set when there is one), the elastic slack left on the current rows [Imax] (above
     ``slack_tol`` the length is infeasible) and the unmodelled-mode guard's excess over its tolerance
-    [band] (elastic: penalised, recorded in the profile, not a feasibility condition)."""
+    [band] (elastic: penalised, recorded in the profile, not a feasibility condition); ``cpu_s`` the
+    process CPU time of the call [s] (wall time depends on the machine's load)."""
 
     n_seek: int
     status: str
@@ -141,6 +157,7 @@ class NLPSolve:
     residual: float
     slack: float = 0.0
     guard_excess: float = 0.0
+    cpu_s: float = 0.0
 
     def to_dict(self) -> dict:
         return dict(self.__dict__)
@@ -213,9 +230,14 @@ class RobustSpread:
     is linear in the scaled ``(v, q)``: ``dT_u Imax v + dT_r |K| q + K ds_r``.  Band rows of the NLP on
     the samples ``band_samples`` (the linear designer's rule, :func:`seekopt.design.qp.set_row_samples`
     with its row ``stride``) (:meth:`rows`); :meth:`spread` for checks and the current envelope.
+
+    ``current_only``: the last ``current_only`` maps are plants the design holds **only** the current limit
+    on (the torque-constant headroom of :class:`EffectAwareDesigner`: the design plant with its gain
+    scaled by ``1 +- kt_uncertainty``); they give no band rows and no band spread.
     """
 
-    def __init__(self, maps: list, nmax: int, horizon: int, band: float, nmax_prev: int = 0, stride: int = 1):
+    def __init__(self, maps: list, nmax: int, horizon: int, band: float, nmax_prev: int = 0, stride: int = 1,
+                 current_only: int = 0):
         N, H = int(nmax), int(horizon)
         ks = np.arange(H + 1)
         (Y0u, Y0r, y0), (I0u, I0r, i0) = maps[0].position_rows(ks, N), maps[0].current_rows(H, N)
@@ -224,7 +246,11 @@ class RobustSpread:
             (Yu, Yr, yj), (Iu, Ir, ij) = m.position_rows(ks, N), m.current_rows(H, N)
             self.DY.append(np.hstack([Yu - Y0u, Yr - Y0r]) / band); self.dy.append((yj - y0) / band)
             self.DI.append(np.hstack([Iu - I0u, Ir - I0r])); self.di.append(ij - i0)
-        self.n, self.N = len(maps) - 1, N
+        self.n, self.N, self.H = len(maps) - 1, N, H
+        self.n_band = self.n - int(current_only)     # plants with band rows (the first n_band of the others)
+        if self.n_band < 0:
+            raise ValueError(f"{current_only} current-only plants of a set of {self.n} others")
+        del self.DY[self.n_band:], self.dy[self.n_band:]
         # robust rows of the NLP: the linear designer's rows of the set's other plants
         # (seekopt.design.qp.set_row_samples, ``stride`` its thinning of this class) on the samples that can
         # follow a seek of this class (k > nmax_prev; the spread is re-checked on every sample and the
@@ -235,16 +261,16 @@ class RobustSpread:
         self.current_substeps = np.arange(min(H, N + 8) * maps[0].L)
 
     def rows(self):
-        """``(DY, dy, DI, di)``: the spread on the robust rows, plant-major ``(n, rows, 2N)`` / ``(n, rows)``
-        ([band] and [A])."""
+        """``(DY, dy, DI, di)``: the spread on the robust rows, plant-major ``(n_band, rows, 2N)`` /
+        ``(n_band, rows)`` [band] and ``(n, rows, 2N)`` / ``(n, rows)`` [A]; ``DY, dy`` None without band plants."""
         kb, kc = self.band_samples, self.current_substeps
-        return (np.stack([D[kb] for D in self.DY]), np.stack([d[kb] for d in self.dy]),
-                np.stack([D[kc] for D in self.DI]), np.stack([d[kc] for d in self.di]))
+        band = (np.stack([D[kb] for D in self.DY]), np.stack([d[kb] for d in self.dy])) if self.n_band else (None, None)
+        return (*band, np.stack([D[kc] for D in self.DI]), np.stack([d[kc] for d in self.di]))
 
     def spread(self, v, q, K: float, imax: float):
-        """``(dE (n, H + 1) [band], dI (n, H L) [Imax])`` for scaled feedforward ``v`` and reference ``q``."""
+        """``(dE (n_band, H + 1) [band], dI (n, H L) [Imax])`` for scaled feedforward ``v`` and reference ``q``."""
         w = np.r_[imax * np.asarray(v[:self.N]), abs(K) * np.asarray(q[:self.N])]
-        dE = np.array([D @ w + K * d for D, d in zip(self.DY, self.dy)])
+        dE = np.array([D @ w + K * d for D, d in zip(self.DY, self.dy)]) if self.n_band else np.zeros((0, self.H + 1))
         dI = np.array([(D @ w + K * d) / imax for D, d in zip(self.DI, self.di)])
         return dE, dI
 
@@ -335,6 +361,8 @@ class SeekNLP:
             kb, kc = spread.band_samples, spread.current_substeps
             for name, D, d, base, kap, scale in (("rob_e", DY, dy, E[kb.tolist()], settings.kappa_band, 1.0),
                                                  ("rob_i", DI, di, I[kc.tolist()], settings.kappa_current, imax)):
+                if D is None:                                         # current-only plants: no band rows
+                    continue
                 n, m = D.shape[0], D.shape[1]
                 Sp = ca.reshape(ca.mtimes(ca.DM(D.reshape(n * m, -1, order="C")), wy) + Kp * ca.DM(d.ravel()),
                                 m, n).T / scale                       # (plants, rows)
@@ -378,20 +406,24 @@ class SeekNLP:
         return X, (np.r_[np.asarray(Y).ravel(), yH] - T0 - K) / self.band, np.asarray(I)
 
     def solve(self, K: float, T0: float, nseek: int, imax: float, uh: float, x0: np.ndarray,
-              v0: np.ndarray, q0: np.ndarray, beta: float, gamma: float, input_map=None):
-        """Solve for a seek of ``K`` tracks from ``T0`` in ``nseek`` samples from ``v0, q0`` (scaled
+              v0: np.ndarray, q0: np.ndarray, beta: float, gamma: float, input_map=None, input_tail: int = 0):
+        """Solve for a seek of ``K`` tracks from ``T0`` settling in ``nseek`` samples from ``v0, q0`` (scaled
         feedforward and reference, length ``nmax``); ``input_map``: ``(gain, offset [A])`` of length
-        ``nmax`` for the guard (default: 1, 0 -- the command is the force).  Returns ``(NLPSolve, v, q)``; ``NLPSolve.residual`` is ``t*`` [band]."""
+        ``nmax`` for the guard (default: 1, 0 -- the command is the force).  ``input_tail``: samples the
+        feedforward and reference may go on after ``nseek`` (the linear designer's ``input_tail``, the
+        problem's ``input_tail_s``: the band holds from ``nseek``, rest at ``K`` from ``nseek + input_tail``).
+        Returns ``(NLPSolve, v, q)``; ``NLPSolve.residual`` is ``t*`` [band]."""
         N, H, st = self.N, self.H, self.settings
-        if not 0 < nseek <= N:
-            raise ValueError(f"seek length {nseek} outside 1..{N}")
-        on = (np.arange(N) < nseek).astype(float)
+        n_in = int(nseek) + int(input_tail)
+        if not (0 < nseek and n_in <= N):
+            raise ValueError(f"seek length {nseek} + input tail {input_tail} outside 1..{N}")
+        on = (np.arange(N) < n_in).astype(float)
         v0, q0 = on * np.clip(v0[:N], -1, 1), on * np.clip(q0[:N], -2, 2)
         ne = H + 1
         w = np.zeros(ne); w[nseek:] = st.w_e / (ne - nseek)
         p = np.r_[K, abs(K), T0, imax, uh, x0, w]
         _, e0, _ = self.rollout(x0, v0, q0, K, T0, imax, uh)
-        knots = correction_knots(nseek, st)
+        knots = correction_knots(n_in, st)
         B = Bv = hat_basis(knots, N, self.nb)
         live = len(knots)
         gi, oi = (np.ones(N), np.zeros(N)) if input_map is None else \
@@ -419,9 +451,9 @@ class SeekNLP:
                 ubg[sl] = self.guard_tol
             elif name == "hf_lo":
                 lbg[sl] = -self.guard_tol
-        t_start = time.perf_counter()
+        t_start, c_start = time.perf_counter(), time.process_time()
         sol = self.solver(x0=xw, p=p, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
-        wall = time.perf_counter() - t_start
+        wall, cpu = time.perf_counter() - t_start, time.process_time() - c_start
         stats = self.solver.stats()
         xo = np.asarray(sol["x"], dtype=float).ravel()
         status = str(stats.get("return_status", "?"))
@@ -431,6 +463,6 @@ class SeekNLP:
         slack = float(xo[nd + 1]) if ok else math.inf
         guard_excess = float(xo[nd + 2]) if ok else math.inf
         rec = NLPSolve(int(nseek), status, ok, int(stats.get("iter_count", 0)), wall,
-                       float(xo[nd]) if ok else math.inf, slack, guard_excess)
+                       float(xo[nd]) if ok else math.inf, slack, guard_excess, cpu)
         v = (1 + xo[0]) * v0 + Bv @ xo[1:1 + self.nv]
         return rec, v, q0 + B @ xo[1 + self.nv:nd]

@@ -201,6 +201,15 @@ class SeekProblem:
         (:func:`seekopt.design.guard.controller_notches`; None: not).
     guard_bands_hz : tuple
         Further guard bands ``(lo_hz, hi_hz)`` or ``(lo_hz, hi_hz, gain)``.
+    blind_pes_points : int
+        Minimum seek-settle designs: the PES a mode of the Nyquist guard band (gain ``hf_gain``, either
+        sign) adds after the settle sample, forced and free, on this many frequencies across the band, is
+        added to every band plant's PES and the sum bounded (:mod:`seekopt.design.blind_pes`; 0: not).
+    blind_pes_tol : float or None
+        That bound as a fraction of the settle band; None: ``(1 + band_margin) / 2`` (the margin above the
+        design band split between the blind-band mode and what no plant carries -- identification error:
+        with 1, K = 1 on the operating-range family's cold / hot member left the band by 0.01-0.04 band, the
+        identified member's error, and settled 1.5 x later than predicted).  Rows off when not positive.
     check_robust : bool
         Also simulate each design on every plant of the robust set.
     input_tail_s : float
@@ -232,6 +241,8 @@ class SeekProblem:
     hf_tol: float = 0.1
     guard_notch_depth_db: float | None = 6.0
     guard_bands_hz: tuple = ()
+    blind_pes_points: int = 5
+    blind_pes_tol: float | None = None
     check_robust: bool = False
     input_tail_s: float = 3e-4
     nominal_first: bool = True
@@ -256,6 +267,9 @@ class SeekProblem:
         if self.hf_guard is not None:
             self.hf_guard = tuple(float(f) for f in self.hf_guard)
         self.guard_bands_hz = tuple(tuple(float(v) for v in b) for b in (self.guard_bands_hz or ()))
+        self.blind_pes_points = int(self.blind_pes_points)
+        if self.blind_pes_tol is not None:
+            self.blind_pes_tol = float(self.blind_pes_tol)
         self.tail_s = _positive("tail_s", self.tail_s)
         self.input_tail_s = float(self.input_tail_s)
         if not (math.isfinite(self.input_tail_s) and 0 <= self.input_tail_s < self.tail_s):
@@ -267,6 +281,14 @@ class SeekProblem:
     @property
     def sample_rate_hz(self) -> float:
         return float(self.controller.sample_rate_hz)
+
+    def blind_pes_bound(self) -> float | None:
+        """Bound of the blind-band mode's PES rows [fraction of the band] (:mod:`seekopt.design.blind_pes`),
+        None when the rows are off (no Nyquist band, no points, or a bound that is not positive)."""
+        tol = 0.5 * (1.0 + self.band_margin) if self.blind_pes_tol is None else self.blind_pes_tol
+        if not self.hf_guard or self.blind_pes_points <= 0 or not tol > 0:
+            return None
+        return float(tol)
 
     def band_tail_samples(self) -> int:
         """Samples after the seek carrying settle-band rows: :func:`band_tail_samples` of the nominal plant

@@ -164,6 +164,8 @@ class SeekQP:
     * total current, each sub-step of ``k < nmax + 40`` (other plants of the set: ``nmax + 8``):
       ``|i| / Imax <= gamma``;
     * unmodelled-mode guard (nominal plant): residual of modes in ``[f_lo, f_hi]`` <= ``hf_tol band``;
+    * blind-band mode's PES (``bpes``, :mod:`seekopt.design.blind_pes`) added to each band plant's, both
+      signs, samples ``k >= N`` (minimum seek-settle designs only): ``|e_i(k) +- dPES_f(k) / band| <= bpes_tol``;
     * rigid rest-to-rest: ``M u_ff = [K, 0]`` (:func:`seekopt.design.profiles.rigid_endpoint_matrix`);
     * optional slew ``|u_ff(k) - u_ff(k-1)| <= slew / fs``.
 
@@ -175,7 +177,8 @@ class SeekQP:
     def __init__(self, maps: list, nmax: int, horizon: int, imax: float, band: float, fs: float,
                  band_plants: list, solver, *, epigraph: bool = False, R=None, hf=None, slew=None,
                  rho: float = 1e-2, rho_q: float = 1e-3, w_e: float = 1.0, w_t: float = 10.0,
-                 eps: float = 1e-9, current_extra: int = 40, stride: int = 1, input_tail: int = 0):
+                 eps: float = 1e-9, current_extra: int = 40, stride: int = 1, input_tail: int = 0,
+                 bpes=None, bpes_tol: float | None = None):
         t_build = time.perf_counter()
         Ns, Hn = int(nmax), int(horizon)
         self.input_tail = int(input_tail)
@@ -235,6 +238,26 @@ class SeekQP:
                 off0, off1 = np.zeros(G.shape[0]), np.zeros(G.shape[0])
             blocks.append((av, aq, None)); c0.append(off0); c1.append(off1)
             kinds += [("hf", 0, j) for j in range(G.shape[0])]
+        ncol = N if self.free_ref else Hn
+
+        def pos_block(h_u, h_r, s_r, target):
+            """``(a_v, a_q, off0, off1)`` of position rows ``(y - target K) / band`` on ``ks_other``."""
+            Tu, Tr = toeplitz_rows(h_u, ks_other, ncol), toeplitz_rows(h_r, ks_other, ncol)
+            z = np.zeros(len(ks_other))
+            if self.free_ref:
+                return imax * Tu / band, Tr / band, z, (s_r[ks_other] - target) / band
+            return imax * (Tu[:, :N] + Tr @ Rfull) / band, None, z, z - target / band
+        # a blind-band mode's PES added to each band plant's (seekopt.design.blind_pes), both signs
+        bp_plants = [i for i in range(len(maps)) if i in set(band_plants)] if bpes else []
+        for i in bp_plants:
+            m = maps[i]
+            pv, pq, p0, p1 = pos_block(m.y_u, m.y_r, m.s_yr, 1.0)
+            for dy_u, dy_r in bpes:
+                dv, dq, d0, d1 = pos_block(dy_u, dy_r, np.cumsum(dy_r), 0.0)
+                for sgn in (1.0, -1.0):
+                    blocks.append((pv + sgn * dv, None if pq is None else pq + sgn * dq, None))
+                    c0.append(p0 + sgn * d0); c1.append(p1 + sgn * d1)
+                    kinds += [("bpes", i, int(k)) for k in ks_other]
         M = rigid_endpoint_matrix(N, maps[0].k0, 1.0 / fs)
         self.M = M
         # rows scaled by the bucket's reach: s_pos = k0 Ts^2 Imax N^2 / 4, s_vel = k0 Ts^2 Imax N
@@ -292,7 +315,8 @@ class SeekQP:
         self._make_solver, self._solver = solver, None
         # row masks of bounds() (computed once)
         self._pes = np.isin(self.kind, ("pes", "pes_hi", "pes_lo")) & np.isin(self.plant_idx, list(self.band_plants))
-        self._masks = {k: self.kind == k for k in ("pes_hi", "pes_lo", "cur", "hf", "rigid", "slew")}
+        self._masks = {k: self.kind == k for k in ("pes_hi", "pes_lo", "cur", "hf", "bpes", "rigid", "slew")}
+        self.bpes_tol = bpes_tol      # |blind-band PES| / band on the band rows' samples (None: rows free)
         self.build_time_s = time.perf_counter() - t_build
 
     @property
@@ -362,6 +386,9 @@ class SeekQP:
             uba[hi] = -c[hi]; lba[lo] = -c[lo]
         elif beta is not None:
             lba[active] = -beta - c[active]; uba[active] = beta - c[active]
+        if self.bpes_tol is not None and (beta is not None and not self.epigraph):
+            bp = mk["bpes"] & (self.sample >= np.where(self.plant_idx == 0, n_nom, nseek))
+            lba[bp] = -self.bpes_tol - c[bp]; uba[bp] = self.bpes_tol - c[bp]
         cur = mk["cur"]
         lba[cur] = -gamma - c[cur]; uba[cur] = gamma - c[cur]
         if hf_tol is not None:

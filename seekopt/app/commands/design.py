@@ -54,19 +54,21 @@ def cmd_design(args) -> int:
     if needs_nlp(plant):    # input/force effects: the effect-aware NLP (seekopt.design.nlp)
         return _design_with_effects(args, plant, controller, robust, start, names)
     from seekopt.design.longseek import LongSeekDesigner, LongSeekError, LongSeekSpec
-    for name, v in (("--vmax", args.vmax), ("--stroke", args.stroke)):
+    r2r = getattr(args, "rest_to_rest_up_to", None)
+    for name, v in (("--vmax", args.vmax), ("--stroke", args.stroke), ("--rest-to-rest-up-to", r2r)):
         if v is not None:
             check_positive(v, name)
     try:
-        spec = LongSeekSpec.from_plant(plant, args.imax, args.vmax, args.stroke)
+        spec = LongSeekSpec.from_plant(plant, args.imax, args.vmax, args.stroke, r2r)
     except LongSeekError as exc:
         raise UsageError(f"{', '.join(names)}: {exc}") from None
     if spec.stroke_track is not None and abs(args.tracks) > spec.stroke_track:
         raise UsageError(f"--tracks {args.tracks:g} is longer than the stroke ({spec.stroke_track:g} tracks)")
     try:
         designer = SeekDesigner(SeekProblem(plant, controller, args.imax, args.settle, robust=robust, family=family))
-        if spec.vmax_track_s is not None:   # long seeks coast at vmax (seekopt.design.longseek)
-            designer = LongSeekDesigner(designer.problem, spec, short_designer=designer)
+        # long seeks (with or without --vmax) are accelerate-coast-arrive, shorter ones rest-to-rest QPs
+        # (the dispatch rule of seekopt.design.longseek)
+        designer = LongSeekDesigner(designer.problem, spec, short_designer=designer)
         designer.check_seek(args.tracks)            # impossible seeks: before any QP is built
     except (ProblemError, LongSeekError) as exc:
         raise UsageError(f"{', '.join(names)}: {exc}") from None
@@ -117,5 +119,5 @@ def _design_with_effects(args, plant, controller, robust, start, names) -> int:
           f"({prof.meta['direction']}), seek-settle {m.settle_time_s * 1e3:.3f} ms ({m.ratio_tbb:.2f} T_bb) on the "
           f"design plant with its effects ({prof.meta['effects_in_design']}), peak current {m.peak_current_a:.3f} A; "
           f"linear design there {lm.settle_time_s * 1e3:.3f} ms; {len(res.solves)} NLPs, Ipopt "
-          f"{res.ipopt_iterations} iterations in {res.ipopt_time_s:.2f} s")
+          f"{res.ipopt_iterations} iterations in {res.ipopt_time_s:.2f} s ({res.ipopt_cpu_s:.2f} s CPU)")
     return 0

@@ -1,0 +1,93 @@
+"""The blind-band mode's forced response in the settle window: rows on the PES a mode above Nyquist adds.
+
+The residual guard (:mod:`seekopt.design.guard`) bounds the *free* vibration a missed mode keeps after the
+inputs end.  A mode near and above Nyquist (``k0 g / (s^2 + 2 zeta w s + w^2)``, ``f`` in the guard's
+``nyquist`` band) also responds *during* the arrival: below its frequency it is a compliance
+``c = k0 g / w^2`` [track/A], and the seek's total current (0.1-0.16 A near the settle sample of
+K = 50-3000 on the NSS drive, Imax 0.3 A) moves the head by ``c i`` (0.03-0.08 track for the NSS truth's
+-1 gain mode at 16.4 kHz); the loop reacts through its sensitivity, and the PES after the settle sample
+shifts by a few hundredths of a track -- a plant of the robust set with no headroom left then leaves
+the band (measured, ``studies/operating_range.py``: every member that settled later than predicted did
+so because of that mode).
+
+Rule (units: tracks, A, samples; ``e_i(k) = (y_i(k) - K) / band`` the PES of band plant ``i`` of the set)::
+
+    d_f(k) = (y_{P + m_f}(k) - y_{P - m_f}(k)) / (2 band)        (f on the nyquist band's grid)
+    |e_i(k) + d_f(k)| <= tol  and  |e_i(k) - d_f(k)| <= tol        every band plant i, every f, k >= N_i
+
+``P`` the design plant's linear part, ``m_f`` a mode at ``f`` of the band's gain ``g`` (``hf_gain``) and
+damping :data:`BLIND_PES_ZETA`; ``y`` the closed-loop head position under the drive's controller (the one
+simulator, :func:`seekopt.drive.simulator.closed_loop_responses`), so ``d_f`` is the loop's
+sensitivity-filtered forced *and* free response to the mode, linear in the profile (``u_ff``, ``r``).  The
+half difference of the ``+g`` and ``-g`` loops is the part linear in ``g``; with ``+-d_f`` the rows hold for
+either sign of the mode and any smaller gain (linear in ``g``).  The mode's PES is taken from the design
+plant's loop and added to every set plant's (first order in the drift: a drifted plant with the mode is
+not simulated -- such loops may be unstable); ``tol`` (default ``(1 + band_margin) / 2``: half the margin
+above the design band, the other half left for identification error) leaves each plant's own rows at
+``band_margin`` and spends only the headroom a plant has at each sample (a bound on ``d_f`` alone,
+``|d_f| <= 1 - band_margin``, measured: the operating-range ``--drift`` design K = 200 33 -> 37 samples,
+these rows 34 with ``tol`` 1, 35 with 0.95).  The rows' ``N_i`` are the band rows' (the nominal plant's may start earlier: ``nominal_first``).
+
+Measured (studies/operating_range.py plants, ``--drift temp=+-4%,zeta=+-20%,gain=+-5%``, K = 200, hot
+member's mode at 15.74 kHz): zeta 0.02 gives an honest prediction with 4, 5 or 12 grid points (35 / 35);
+zeta 0.005 leaves gaps between grid points the design uses (hot 41 against 35 predicted); zeta 0.05
+costs one more sample.  The compliance alone (a quasi-static stand-in ``k0 g / w_lo^2``) is not enough
+(hot 42 against 35): the mode's resonant response during the arrival matters too.  The free vibration
+left after the seek is the residual guard's (undamped modes, fine grid).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from identification.model.plant import Mode
+from seekopt.drive.simulator import closed_loop_responses
+
+__all__ = ["BLIND_PES_ZETA", "blind_pes_freqs", "blind_pes_maps"]
+
+#: Damping ratio of the hypothetical mode: its half-power width ``2 zeta f`` (475-690 Hz over the NSS band)
+#: is about the grid's spacing at 5 points, so the rows hold between grid points (module docstring); the
+#: residual guard's undamped modes bound the slower free vibration separately.
+BLIND_PES_ZETA = 0.02
+
+
+def blind_pes_freqs(bands: list, points: int) -> tuple:
+    """``(freqs_hz, gains)``: ``points`` frequencies [Hz] evenly across each ``nyquist`` band of
+    ``bands`` (:class:`seekopt.design.guard.GuardBand`) and the band's gain at each."""
+    f, g = [], []
+    for b in bands:
+        if b.reason != "nyquist" or points <= 0 or b.gain <= 0:
+            continue
+        x = np.linspace(b.lo_hz, b.hi_hz, int(points)) if points > 1 else np.array([0.5 * (b.lo_hz + b.hi_hz)])
+        f.append(x); g.append(np.full(x.size, float(b.gain)))
+    if not f:
+        return np.zeros(0), np.zeros(0)
+    return np.concatenate(f), np.concatenate(g)
+
+
+def blind_pes_maps(plant, controller, horizon: int, freqs_hz, gains, zeta: float = BLIND_PES_ZETA) -> list:
+    """Impulse responses of the PES a mode at each frequency adds, ``[(dy_u, dy_r), ...]``.
+
+    ``dy_u`` [track/A] and ``dy_r`` [track/track] (length ``horizon``) are half the difference of the
+    closed-loop position responses (to a unit feedforward impulse and a unit reference impulse) of the
+    design plant's linear part with the mode ``(f, zeta, +g)`` and ``(f, zeta, -g)`` added.  A sign whose
+    loop is unstable is replaced by the difference from the plant without the mode; a frequency whose
+    loops are both unstable is skipped (no design can hold it anyway; the residual guard still covers it).
+    """
+    lin = plant.linear_part().copy(meta={})     # a hypothetical plant (an identified one may not carry modes above Nyquist)
+    base = closed_loop_responses(lin, controller, int(horizon))
+    out = []
+    for f, g in zip(np.atleast_1d(freqs_hz), np.atleast_1d(gains)):
+        resp = {}
+        for s in (1.0, -1.0):
+            p = lin.copy(modes=sorted(list(lin.modes) + [Mode(float(f), float(zeta), s * float(g))],
+                                      key=lambda m: m.freq_hz))
+            r = closed_loop_responses(p, controller, int(horizon))
+            d = (r["y_uff"] - base["y_uff"], r["y_r"] - base["y_r"])
+            if all(np.all(np.isfinite(a)) for a in d) and np.max(np.abs(r["y_r"][-10:])) < 1e3:
+                resp[s] = d
+        if len(resp) == 2:
+            out.append(tuple(0.5 * (a - b) for a, b in zip(resp[1.0], resp[-1.0])))
+        elif resp:
+            (s, d), = resp.items()
+            out.append(tuple(s * a for a in d))
+    return out
