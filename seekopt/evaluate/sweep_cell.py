@@ -65,14 +65,22 @@ def designer_problem(spec: str, plant, controller, imax: float, settle: float, f
     return SeekProblem(plant, controller, imax, settle, robust=robust, family=list(family or []), **options)
 
 
-def designer_factory(spec: str, family=None, drift: str | None = None, **options):
+def designer_factory(spec: str, family=None, drift: str | None = None, long_seeks: bool = True, **options):
     """``f(plant, controller, imax, settle) -> designer``; the built-in ``ocp`` (nominal) and ``ocp-robust``
-    designs are :class:`~seekopt.design.designer.SeekDesigner` of :func:`designer_problem` (``family``,
-    ``drift`` and the problem ``options``); ``baseline`` and ``module:attr`` designers take no options."""
+    designs are :class:`~seekopt.design.longseek.LongSeekDesigner` of :func:`designer_problem` (``family``,
+    ``drift`` and the problem ``options``): the dispatch of ``seekopt design`` (rest-to-rest QP for short
+    seeks, the acceleration step for long ones, the plant's velocity limit and stroke from its metadata);
+    ``long_seeks=False``: the rest-to-rest :class:`~seekopt.design.designer.SeekDesigner` at every length
+    (the export's anchors; its long-seek classes are built apart).  ``baseline`` and ``module:attr``
+    designers take no options."""
     if spec in OCP_SPECS:
         from seekopt.design.designer import SeekDesigner
-        return lambda plant, controller, imax, settle: SeekDesigner(designer_problem(
-            spec, plant, controller, imax, settle, family, drift, **options))
+        from seekopt.design.longseek import LongSeekDesigner
+
+        def build(plant, controller, imax, settle):
+            short = SeekDesigner(designer_problem(spec, plant, controller, imax, settle, family, drift, **options))
+            return LongSeekDesigner(short.problem, short_designer=short) if long_seeks else short
+        return build
     if spec == "baseline":
         return BaselineDesigner
     mod, _, attr = spec.partition(":")
