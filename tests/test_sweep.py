@@ -62,8 +62,15 @@ BUILT = []
 
 
 class CountingDesigner(FailingDesigner):
+    """Counts its builds: in this process (``BUILT``) and, in any process, as one file per build in the
+    folder ``$SEEKOPT_TEST_BUILDS`` (``<pid>-<k0>-<uuid>``)."""
+
     def __init__(self, *a, **k):
         BUILT.append(a[0].k0)
+        folder = os.environ.get("SEEKOPT_TEST_BUILDS")
+        if folder:
+            import uuid
+            (Path(folder) / f"{os.getpid()}-{a[0].k0!r}-{uuid.uuid4().hex}").touch()
         super().__init__(*a, **k)
 
     def design(self, tracks):
@@ -161,6 +168,81 @@ def test_process_pool_equals_serial(serial, tmp_path):
     pd.testing.assert_frame_equal(numbers(out), numbers(tmp_path), check_exact=True)
     assert {p.name for p in s.figures} >= {"seek_settle_vs_length.png", "heatmap_saving.png",
                                            "gain_over_baselines.png"}
+
+
+def lanes_used(outdir, builds):
+    """Per worker pid: (designers it built, counted by files; TPIs of its cells; lengths per TPI in
+    the order it computed them)."""
+    per = {}
+    for c in sorted(load_cells(outdir).values(), key=lambda c: c["computation_id"]):
+        per.setdefault(c["pid"], {}).setdefault(c["tpi"], []).append(c["tracks"])
+    built = {}
+    for f in Path(builds).iterdir():
+        built[int(f.name.split("-")[0])] = built.get(int(f.name.split("-")[0]), 0) + 1
+    return {pid: (built.get(pid, 0), sorted(t), t) for pid, t in per.items()}
+
+
+@pytest.mark.parametrize("engine", ["process", "local"])
+def test_two_workers_same_cells_one_designer_per_worker_and_tpi(engine, tmp_path, monkeypatch):
+    """2 workers (process pool, Dask LocalCluster) compute the same cells as one process, each worker
+    builds one designer per TPI it computes (never one per cell), and both workers compute."""
+    builds = tmp_path / "builds"
+    builds.mkdir()
+    monkeypatch.setenv("SEEKOPT_TEST_BUILDS", str(builds))
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(Path(__file__).parent), str(ROOT),
+                                                      os.environ.get("PYTHONPATH", "")]))
+    cfg = config(designer="test_sweep:CountingDesigner", tpis=[100e3, 200e3, 300e3], tracks=[1, 3, 10, 30])
+    run_sweep(cfg, tmp_path / "one", engine="serial", progress=False, figures=False)
+    assert len(list(builds.iterdir())) == 3             # serial: one designer per TPI
+    for f in builds.iterdir():
+        f.unlink()
+    s = run_sweep(cfg, tmp_path / "two", engine=engine, workers=2, progress=False, figures=False)
+    assert s.computed == 12 and not s.engine_errors and s.cell_cpu_s > 0
+    pd.testing.assert_frame_equal(numbers(tmp_path / "one"), numbers(tmp_path / "two"), check_exact=True)
+    used = lanes_used(tmp_path / "two", builds)
+    assert len(used) == 2 and os.getpid() not in used
+    for pid, (n_built, tpis, _) in used.items():
+        assert n_built == len(tpis), (pid, n_built, tpis)        # one build per (worker, TPI)
+    assert sum(n for n, _, _ in used.values()) <= 3 + 1          # 3 TPIs, at most one TPI shared
+    assert sorted(s.designers_built.values()) == sorted(n for n, _, _ in used.values())
+    assert set(s.blas_threads.values()) == {1}                   # one BLAS thread in every worker
+
+
+def test_worker_pool_sends_work_to_the_chosen_worker_and_joins_on_shutdown():
+    from seekopt.evaluate.engines import make_pool
+    pool = make_pool(2)
+    try:
+        pids = [pool.submit_to(lane, os.getpid).result(timeout=120) for lane in (0, 1, 0, 1)]
+        any_pid = pool.submit(os.getpid).result(timeout=120)
+        procs = pool.processes()
+    finally:
+        pool.shutdown(wait=True)
+    assert pids[0] == pids[2] != pids[1] == pids[3] and any_pid in pids and os.getpid() not in pids
+    assert len(procs) == 2 and all(p.exitcode is not None for p in procs)     # joined, not left running
+
+
+def test_lane_plan_keeps_tpis_on_workers_and_shares_the_last():
+    from seekopt.evaluate.sweep_lanes import LanePlan
+    cells = [(t, k) for t in (1e5, 2e5, 3e5) for k in (1, 3, 10, 30)]
+    plan, got = LanePlan(cells, 2), {0: [], 1: []}
+    for lane in (0, 1, 0, 1, 0, 1, 0, 1, 0, 1):         # two workers in step
+        got[lane].append(plan.next(lane))
+    assert [k for _, k in got[0][:4]] == [30, 10, 3, 1] and {t for t, _ in got[0][:4]} == {1e5}
+    assert {t for t, _ in got[1][:4]} == {2e5}
+    # the last TPI: longest first; the other worker takes the shorter half of what is left, then the rest
+    assert got[0][4] == (3e5, 30) and got[1][4] == (3e5, 1)
+    assert plan.next(0) == (3e5, 10) and plan.next(1) == (3e5, 3) and plan.next(0) is None
+    assert not plan and plan.splits == 1
+    plan.give_back(2e5, 3)
+    assert plan and plan.next(1) == (2e5, 3) and plan.next(1) is None
+    for lanes in (1, 2, 3, 5):                           # every cell exactly once
+        plan, out = LanePlan(cells, lanes), []
+        while plan:
+            for lane in range(lanes):
+                c = plan.next(lane)
+                if c is not None:
+                    out.append(c)
+        assert sorted(out) == sorted(cells)
 
 
 def test_dask_local_cluster_equals_serial(serial, tmp_path):

@@ -1,19 +1,24 @@
 """Where sweep cells run: in process, on a local process pool, or on a Dask cluster.
 
 Every engine has the same small interface, so the driving loop (:func:`seekopt.evaluate.sweep.run_sweep`)
-submits work lazily -- at most :attr:`Engine.capacity` payloads in flight, each claimed just
-before it is submitted -- and saves each result as soon as it arrives; an engine failure of one
-payload never stops the others:
+submits work lazily -- each of the engine's :attr:`Engine.lanes` workers at most :attr:`Engine.depth`
+payloads deep (the next one waits on the worker while it computes), each claimed just before it is
+submitted -- and saves each result as soon as it arrives; an engine failure of one payload never
+stops the others:
 
-``submit(payload) -> handle``, ``wait(handles, timeout) -> [(handle, result, exception), ...]``
-(the finished ones, at least one unless the timeout expires), ``close()`` (also a context manager).
+``submit(payload, lane) -> handle`` (to worker ``lane`` where the engine can choose),
+``wait(handles, timeout) -> [(handle, result, exception), ...]`` (the finished ones, at least one
+unless the timeout expires), ``close()`` (also a context manager).
 
 * :class:`SerialEngine` -- one after the other, in this process;
-* :class:`PoolEngine` -- a :class:`concurrent.futures.ProcessPoolExecutor` (:func:`make_pool`);
-  processes, not threads, because Ipopt with MUMPS is not thread-safe;
+* :class:`PoolEngine` -- a :class:`WorkerPool` of processes (:func:`make_pool`), one
+  :class:`concurrent.futures.ProcessPoolExecutor` of one process per worker so a payload goes to
+  the worker of its lane (or any other executor, whichever worker is free); processes, not
+  threads, because Ipopt with MUMPS is not thread-safe;
 * :class:`DaskEngine` -- ``dask.distributed``: ``"local"`` starts a loopback
   :class:`~dask.distributed.LocalCluster` (one thread per worker process), or a scheduler address
-  ``tcp://HOST:PORT`` / ``tls://HOST:PORT``, or an existing client.
+  ``tcp://HOST:PORT`` / ``tls://HOST:PORT``, or an existing client; a lane is a worker (the task
+  is restricted to it, loosely: it runs elsewhere if that worker is gone).
 
 Worker processes of :func:`make_pool` (set up by :func:`_worker_init`):
 
@@ -44,7 +49,7 @@ import uuid
 from seekopt.design.blas import limit_blas
 
 __all__ = ["EngineError", "Engine", "SerialEngine", "PoolEngine", "DaskEngine", "make_engine", "make_pool",
-           "worker_held", "one_blas_thread", "limit_blas", "one_line"]
+           "WorkerPool", "worker_held", "one_blas_thread", "limit_blas", "one_line"]
 
 _PR_SET_PDEATHSIG = 1
 
@@ -97,18 +102,86 @@ def _worker_init(parent_pid: int | None = None, pdeathsig: bool = True) -> None:
         _die_with_parent(parent_pid, pdeathsig)
 
 
-def make_pool(workers: int | None = None):
-    """A process pool whose workers have one BLAS thread and die with this process (module notes).
+def make_pool(workers: int | None = None) -> "WorkerPool":
+    """A pool of ``workers`` processes that have one BLAS thread and die with this process (module notes).
 
     ``spawn`` start method (no fork of a threaded parent; a script that uses it needs the
     ``if __name__ == "__main__":`` guard).  Its workers keep what they built
-    (:func:`worker_held`) between calls, so a pool reused across sweeps stays warm.
+    (:func:`worker_held`) between calls, so a pool reused across sweeps stays warm; a sweep sends
+    each worker its own cells (:meth:`WorkerPool.submit_to`).
     """
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor
-    main = threading.current_thread() is threading.main_thread()
-    return ProcessPoolExecutor(max_workers=workers or os.cpu_count() or 1, mp_context=mp.get_context("spawn"),
-                               initializer=_worker_init, initargs=(os.getpid(), main))
+    return WorkerPool(workers or os.cpu_count() or 1)
+
+
+class WorkerPool:
+    """``workers`` worker processes, each behind its own one-process
+    :class:`~concurrent.futures.ProcessPoolExecutor`, so work can go to a chosen worker
+    (:meth:`submit_to`: a sweep keeps one TPI's neighbouring lengths on the worker whose designer
+    is warm for them); :meth:`submit` (the executor interface) goes to the worker with the least
+    work queued.  ``shutdown(wait, cancel_futures=)`` as an executor's; :meth:`terminate` stops the
+    workers at once."""
+
+    def __init__(self, workers: int):
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor
+        main = threading.current_thread() is threading.main_thread()
+        ctx = mp.get_context("spawn")
+        self._max_workers = int(workers)
+        self._lanes = [ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=_worker_init,
+                                           initargs=(os.getpid(), main)) for _ in range(self._max_workers)]
+        self._queued = [0] * self._max_workers
+        self._lock = threading.Lock()
+
+    @property
+    def workers(self) -> int:
+        return self._max_workers
+
+    def submit_to(self, lane: int, fn, /, *args, **kwargs):
+        """``fn(*args, **kwargs)`` on worker ``lane`` (0 ... workers - 1); a future."""
+        with self._lock:
+            self._queued[lane] += 1
+        fut = self._lanes[lane].submit(fn, *args, **kwargs)
+        fut.add_done_callback(lambda f: self._done(lane))
+        return fut
+
+    def _done(self, lane: int) -> None:
+        with self._lock:
+            self._queued[lane] -= 1
+
+    def submit(self, fn, /, *args, **kwargs):
+        """``fn(*args, **kwargs)`` on the worker with the least work queued; a future."""
+        with self._lock:
+            lane = min(range(self._max_workers), key=self._queued.__getitem__)
+        return self.submit_to(lane, fn, *args, **kwargs)
+
+    def processes(self) -> list:
+        return [p for ex in self._lanes for p in (getattr(ex, "_processes", None) or {}).values()]
+
+    def shutdown(self, wait: bool = True, *, cancel_futures: bool = False) -> None:
+        """Shut every worker down (all told first, then waited for: ``wait`` joins the workers)."""
+        managers = [getattr(ex, "_executor_manager_thread", None) for ex in self._lanes]
+        for ex in self._lanes:
+            ex.shutdown(wait=False, cancel_futures=cancel_futures)
+        if wait:
+            for t in managers:
+                if t is not None:
+                    t.join()
+
+    def terminate(self) -> None:
+        """Stop now: cancel the queued work and terminate the workers (an interrupted sweep)."""
+        procs = self.processes()
+        self.shutdown(wait=False, cancel_futures=True)
+        for p in procs:
+            if p.is_alive():
+                p.terminate()
+        for p in procs:
+            p.join(5)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, typ, exc, tb):
+        self.shutdown(wait=True, cancel_futures=typ is not None)
 
 
 _HOLD_LOCK = threading.Lock()
@@ -145,12 +218,22 @@ def worker_held(factory):
 
 # ------------------------------------------------------------------ engines
 class Engine:
-    """Common interface (see the module notes)."""
+    """Common interface (see the module notes).
+
+    ``lanes`` workers, each given up to ``depth`` payloads at once (the next one queued on the worker
+    while it computes, so no worker waits for the driving process between payloads);
+    ``submit(payload, lane)`` sends a payload to worker ``lane`` (0 ... lanes - 1) where the engine
+    can choose (a :class:`WorkerPool`, a Dask cluster), anywhere free otherwise."""
 
     name = "engine"
-    capacity = 1
+    lanes = 1
+    depth = 1
 
-    def submit(self, payload):
+    @property
+    def capacity(self) -> int:
+        return self.lanes * self.depth
+
+    def submit(self, payload, lane: int = 0):
         raise NotImplementedError
 
     def wait(self, handles, timeout=None) -> list:
@@ -172,9 +255,9 @@ class SerialEngine(Engine):
     name = "serial"
 
     def __init__(self, fn):
-        self.fn, self.capacity = fn, 1
+        self.fn = fn
 
-    def submit(self, payload):
+    def submit(self, payload, lane: int = 0):
         done = _Done()
         try:
             done.result = self.fn(payload)
@@ -194,16 +277,22 @@ class _Done:
 
 
 class PoolEngine(Engine):
-    """A local process pool (``executor``, left running, or a new :func:`make_pool` of ``workers``)."""
+    """A local process pool (``executor``, left running, or a new :func:`make_pool` of ``workers``): a
+    :class:`WorkerPool` takes each payload to the worker of its lane; any other executor runs it on
+    whichever worker is free."""
 
     name = "process"
+    depth = 2
 
     def __init__(self, fn, workers: int | None = None, executor=None):
         self.fn, self.own = fn, executor is None
         self.ex = executor or make_pool(workers)
-        self.capacity = int(getattr(self.ex, "_max_workers", None) or workers or os.cpu_count() or 1)
+        self.lanes = int(getattr(self.ex, "_max_workers", None) or workers or os.cpu_count() or 1)
+        self._to = getattr(self.ex, "submit_to", None)
 
-    def submit(self, payload):
+    def submit(self, payload, lane: int = 0):
+        if self._to is not None:
+            return self._to(lane % self.lanes, self.fn, payload)
         return self.ex.submit(self.fn, payload)
 
     def wait(self, handles, timeout=None) -> list:
@@ -219,20 +308,15 @@ class PoolEngine(Engine):
         if not self.own:
             return
         if cancel:       # interrupted: stop the workers now rather than finish their cells for nobody
-            procs = list((getattr(self.ex, "_processes", None) or {}).values())
-            self.ex.shutdown(wait=False, cancel_futures=True)
-            for p in procs:
-                if p.is_alive():
-                    p.terminate()
-            for p in procs:
-                p.join(5)
+            self.ex.terminate()
         else:
             self.ex.shutdown(wait=True, cancel_futures=True)
 
 
 class DaskEngine(Engine):
     """A Dask cluster: ``address`` ``"local"`` (a loopback LocalCluster of ``workers`` processes with one
-    thread each), a scheduler ``tcp://HOST:PORT``, or an existing ``client``.
+    thread each), a scheduler ``tcp://HOST:PORT``, or an existing ``client``.  One lane per worker (the
+    workers known at the start; a payload may still run elsewhere when its worker is gone).
 
     Raises
     ------
@@ -241,6 +325,7 @@ class DaskEngine(Engine):
     """
 
     name = "dask"
+    depth = 2
 
     def __init__(self, fn, address: str = "local", workers: int | None = None, client=None,
                  key=lambda p: "task"):
@@ -261,13 +346,16 @@ class DaskEngine(Engine):
                 raise EngineError(f"dask: {where} ({one_line(exc)})") from None
         self.client = client
         try:
-            self.capacity = max(1, sum(client.nthreads().values()))
-        except Exception:  # noqa: BLE001 - a scheduler that does not answer: submit anyway
-            self.capacity = workers or 2
+            self.workers = sorted(client.scheduler_info()["workers"])
+        except Exception:  # noqa: BLE001 - a scheduler that does not answer: submit anyway, anywhere
+            self.workers = []
+        self.lanes = max(1, len(self.workers) or workers or 2)
 
-    def submit(self, payload):
+    def submit(self, payload, lane: int = 0):
+        where = dict(workers=[self.workers[lane % len(self.workers)]], allow_other_workers=True) \
+            if self.workers else {}
         return self.client.submit(self.fn, payload, pure=False,
-                                  key=f"seekopt-{self.key(payload)}-{uuid.uuid4().hex[:8]}")
+                                  key=f"seekopt-{self.key(payload)}-{uuid.uuid4().hex[:8]}", **where)
 
     def wait(self, handles, timeout=None) -> list:
         from dask.distributed import wait

@@ -39,13 +39,16 @@ computed, :func:`check_inputs` refuses a designer that cannot be made and a cont
 does not close a stable loop with the plant at every TPI (or runs at another sample rate).
 
 Engines (:mod:`seekopt.evaluate.engines`): ``serial`` (in process), ``process`` (default; a local
-:class:`concurrent.futures.ProcessPoolExecutor` whose workers have one BLAS thread and die with
+:class:`~seekopt.evaluate.engines.WorkerPool` of processes that have one BLAS thread and die with
 the sweep; Ipopt/MUMPS is not thread-safe, so processes), and Dask (``local`` starts a loopback
 :class:`dask.distributed.LocalCluster`, or a scheduler address ``tcp://HOST:PORT``).  Every
-worker holds one :class:`CellRunner` with one warm designer, built once per (plant, controller,
-TPI) and reused for the following cells of that TPI; there is no module-level cache.  The
+worker holds one :class:`CellRunner` with one warm designer per (plant, controller, TPI), built
+once and reused for the following cells of that TPI, which go to the same worker
+(:mod:`seekopt.evaluate.sweep_lanes`); there is no module-level cache.  The
 numbers do not depend on the engine or the order; only the timing columns
-(:data:`TIMING_COLUMNS`) do.
+(:data:`TIMING_COLUMNS`) do.  Each cell also records the CPU it took in its worker and the designers that
+worker had built (``cpu_s``, ``designers_built``, ``pid``, ``host``, and the BLAS threads it may use,
+``blas_threads``; gathered in :class:`SweepSummary`).
 """
 from __future__ import annotations
 
@@ -86,10 +89,21 @@ class SweepSummary:
     table: Path | None = None
     figures: list = field(default_factory=list)
     by_others: int = 0                                   # computed meanwhile by another sweep (claims)
+    cell_cpu_s: float = 0.0                              # CPU [s] the computed cells took in their workers
+    designers_built: dict = field(default_factory=dict)  # (host, pid) of a worker -> designers it has built
+    blas_threads: dict = field(default_factory=dict)     # (host, pid) of a worker -> most BLAS threads seen
+    first_submit: float = 0.0                            # perf_counter [s] of the first submission
+    last_result: float = 0.0                             # perf_counter [s] of the last result saved
 
     @property
     def cells_per_s(self) -> float:
         return self.computed / self.wall_s if self.wall_s > 0 else float("nan")
+
+    @property
+    def compute_wall_s(self) -> float:
+        """Wall time [s] from the first cell submitted to the last result saved (without the engine's
+        start and the table's assembly)."""
+        return max(self.last_result - self.first_submit, 0.0)
 
     @property
     def ok(self) -> bool:
@@ -121,9 +135,11 @@ def run_sweep(cfg: SweepConfig, outdir, *, engine: str = "process", workers: int
               progress: bool = True, client=None, executor=None, figures: bool = True) -> SweepSummary:
     """Run (or resume, or join) a sweep into ``outdir`` and assemble its table and figures.
 
-    Cells are submitted lazily, TPI by TPI, at most as many as the engine has workers, each
-    claimed just before (:class:`seekopt.evaluate.claims.Claims`): a second sweep of the same
-    configuration into the same folder computes the cells the first has not claimed and waits for
+    Cells are submitted lazily, each worker given the neighbouring lengths of one TPI in turn
+    (:class:`seekopt.evaluate.sweep_lanes.LanePlan`: its designer stays warm; the longest lengths
+    first and the last TPIs shared, so the workers finish together), at most ``Engine.depth`` cells
+    queued per worker, each claimed just before (:class:`seekopt.evaluate.claims.Claims`): a second
+    sweep of the same configuration into the same folder computes the cells the first has not claimed and waits for
     the others, so the two share the work; a killed sweep's claims are taken over.
 
     Parameters
@@ -203,22 +219,27 @@ def run_sweep(cfg: SweepConfig, outdir, *, engine: str = "process", workers: int
 
 
 def _drive(eng, cfgd, todo, outdir, claims, saved, summary, bar, poll_s: float = 0.5) -> None:
-    """The driving loop of :func:`run_sweep`: claim and submit up to ``eng.capacity`` cells, save
-    each result as it arrives, wait for cells claimed by another live sweep (take them over if it
-    dies)."""
-    from collections import deque
+    """The driving loop of :func:`run_sweep`: keep every lane of the engine ``eng.depth`` cells deep,
+    each cell of the lane's TPI (:class:`~seekopt.evaluate.sweep_lanes.LanePlan`) and claimed just
+    before it is submitted; save each result as it arrives; wait for cells claimed by another live
+    sweep (take them over if it dies)."""
+    from seekopt.evaluate.sweep_lanes import LanePlan
     h = cfgd["config_hash"]
-    pending, inflight, elsewhere = deque(todo), {}, {}
+    plan, inflight, elsewhere = LanePlan(todo, eng.lanes), {}, {}
+    queued = [0] * eng.lanes
+    builds: dict = summary.designers_built
 
     def done(key, cell, by=""):
         saved[key] = cell
         bar.update(1)
         bar.set_postfix_str(f"{key} {by or 'ok'}", refresh=False)
 
-    last_scan = 0.0
-    while pending or inflight or elsewhere:
-        while pending and len(inflight) < eng.capacity:
-            tpi, k = pending.popleft()
+    def fill(lane) -> None:
+        while queued[lane] < eng.depth:
+            nxt = plan.next(lane)
+            if nxt is None:
+                return
+            tpi, k = nxt
             key = cell_key(tpi, k)
             cell = load_cell(outdir, key, h)
             if cell is None:
@@ -229,7 +250,9 @@ def _drive(eng, cfgd, todo, outdir, claims, saved, summary, bar, poll_s: float =
                 cell = load_cell(outdir, key, h)      # saved between the look and the claim?
                 if cell is None:
                     try:
-                        inflight[eng.submit({"config": cfgd, "tpi": tpi, "tracks": k})] = key
+                        inflight[eng.submit({"config": cfgd, "tpi": tpi, "tracks": k}, lane)] = (key, lane)
+                        queued[lane] += 1
+                        summary.first_submit = summary.first_submit or time.perf_counter()
                     except Exception as exc:  # noqa: BLE001 - e.g. a broken pool: this cell is not computed
                         claims.release(key)
                         summary.engine_errors[key] = one_line(exc)
@@ -238,9 +261,15 @@ def _drive(eng, cfgd, todo, outdir, claims, saved, summary, bar, poll_s: float =
                 claims.release(key)
             summary.by_others += 1
             done(key, cell, "by another sweep")
+
+    last_scan = 0.0
+    while plan or inflight or elsewhere:
+        for lane in range(eng.lanes):
+            fill(lane)
         if inflight:
             for handle, cell, exc in eng.wait(list(inflight), timeout=poll_s if elsewhere else None):
-                key = inflight.pop(handle)
+                key, lane = inflight.pop(handle)
+                queued[lane] -= 1
                 if exc is not None:
                     summary.engine_errors[key] = one_line(exc)
                     bar.update(1)
@@ -249,8 +278,15 @@ def _drive(eng, cfgd, todo, outdir, claims, saved, summary, bar, poll_s: float =
                     write_atomic(outdir / "cells" / f"{key}.json", json.dumps(cell))
                     journal(outdir, f"computed {key} {cell['computation_id']}")
                     summary.computed += 1
+                    summary.cell_cpu_s += float(cell.get("cpu_s") or 0.0)
+                    worker = (cell.get("host", ""), cell["pid"])
+                    builds[worker] = max(builds.get(worker, 0), int(cell.get("designers_built") or 0))
+                    blas = summary.blas_threads
+                    blas[worker] = max(blas.get(worker, 0), int(cell.get("blas_threads") or 0))
+                    summary.last_result = time.perf_counter()
                     done(key, cell)
                 claims.release(key)
+                fill(lane)                             # this lane's next cell before anything else
         elif elsewhere:
             time.sleep(poll_s)
         if elsewhere and time.perf_counter() - last_scan >= poll_s:
@@ -263,9 +299,8 @@ def _drive(eng, cfgd, todo, outdir, claims, saved, summary, bar, poll_s: float =
                     done(key, cell, "by another sweep")
                 elif not claims.holder_alive(key):
                     del elsewhere[key]
-                    pending.appendleft((tpi, k))       # its sweep died: take the cell over
-            if elsewhere and not inflight and not pending:
+                    plan.give_back(tpi, k)             # its sweep died: take the cell over
+            if elsewhere and not inflight and not plan:
                 holders = sorted({v[2].split()[0] for v in elsewhere.values()})
                 bar.set_postfix_str(f"waiting for {len(elsewhere)} cells claimed by pid {', '.join(holders)}",
                                     refresh=True)
-

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import importlib
 import os
+import socket
 import threading
 import time
 import uuid
@@ -64,14 +65,22 @@ def designer_problem(spec: str, plant, controller, imax: float, settle: float, f
     return SeekProblem(plant, controller, imax, settle, robust=robust, family=list(family or []), **options)
 
 
-def designer_factory(spec: str, family=None, drift: str | None = None, **options):
+def designer_factory(spec: str, family=None, drift: str | None = None, long_seeks: bool = True, **options):
     """``f(plant, controller, imax, settle) -> designer``; the built-in ``ocp`` (nominal) and ``ocp-robust``
-    designs are :class:`~seekopt.design.designer.SeekDesigner` of :func:`designer_problem` (``family``,
-    ``drift`` and the problem ``options``); ``baseline`` and ``module:attr`` designers take no options."""
+    designs are :class:`~seekopt.design.longseek.LongSeekDesigner` of :func:`designer_problem` (``family``,
+    ``drift`` and the problem ``options``): the dispatch of ``seekopt design`` (rest-to-rest QP for short
+    seeks, the acceleration step for long ones, the plant's velocity limit and stroke from its metadata);
+    ``long_seeks=False``: the rest-to-rest :class:`~seekopt.design.designer.SeekDesigner` at every length
+    (the export's anchors; its long-seek classes are built apart).  ``baseline`` and ``module:attr``
+    designers take no options."""
     if spec in OCP_SPECS:
         from seekopt.design.designer import SeekDesigner
-        return lambda plant, controller, imax, settle: SeekDesigner(designer_problem(
-            spec, plant, controller, imax, settle, family, drift, **options))
+        from seekopt.design.longseek import LongSeekDesigner
+
+        def build(plant, controller, imax, settle):
+            short = SeekDesigner(designer_problem(spec, plant, controller, imax, settle, family, drift, **options))
+            return LongSeekDesigner(short.problem, short_designer=short) if long_seeks else short
+        return build
     if spec == "baseline":
         return BaselineDesigner
     mod, _, attr = spec.partition(":")
@@ -97,37 +106,44 @@ def evaluate(plant, controller, profile, settle, horizon_s, k0) -> dict:
 class CellRunner:
     """Computes cells (:meth:`__call__`) and holds what it built for them.
 
-    It keeps the plant, the controller and ONE warm designer for the current
-    ``(configuration, TPI)``: built on the first cell of that TPI, reused for every following
-    cell of it (cells are submitted TPI by TPI), replaced when the TPI changes.  The serial engine
-    holds one runner in the driving process; each pool or Dask worker holds its own
-    (:func:`run_cell_in_worker`, :func:`seekopt.evaluate.engines.worker_held`).  A lock makes one
-    runner compute one cell at a time (Ipopt/MUMPS is not thread-safe).
+    It keeps the plant, the controller and ONE warm designer per ``(configuration, TPI)`` it computes,
+    built on the first cell of that TPI and reused for every following cell of it (a sweep sends a
+    worker the neighbouring lengths of one TPI in turn, :mod:`seekopt.evaluate.sweep_lanes`); the
+    :data:`HELD` most recent TPIs are kept.  The serial engine holds one runner in the driving process;
+    each pool or Dask worker holds its own (:func:`run_cell_in_worker`,
+    :func:`seekopt.evaluate.engines.worker_held`).  A lock makes one runner compute one cell at a time
+    (Ipopt/MUMPS is not thread-safe).
 
     Attributes
     ----------
     designers_built : int
-        Designers built so far (one per TPI visited; for reuse tests and studies).
+        Designers built so far (one per TPI visited; reported with each cell, for reuse tests and studies).
     """
+
+    #: TPIs whose designers a runner keeps (a worker that takes over part of another TPI and comes
+    #: back finds its designer warm; each holds its QP structures, so not every TPI of a sweep)
+    HELD = 2
 
     def __init__(self):
         self._lock = threading.Lock()
-        self._key = None
-        self._held: dict = {}
+        self._held: dict = {}           # (config hash, tpi) -> plant, controller, designer; most recent last
         self.designers_built = 0
 
     def _objects(self, cfgd: dict, tpi: float) -> dict:
         key = (cfgd["config_hash"], tpi)
-        if key != self._key:
+        held = self._held.pop(key, None)
+        if held is None:
             plant0 = ModalPlant.from_dict(cfgd["plant"])
             ctrl = Controller.from_json(cfgd["controller"])
             scaled = cfgd.get("scale_controller", True)
-            self._held = {"plant0": plant0, "plant": plant0.at_tpi(tpi),
-                          "ctrl": controller_at_tpi(ctrl, plant0, tpi) if scaled else ctrl,
-                          "gain": controller_factor(plant0, tpi) if scaled else 1.0, "designer": None,
-                          "family": [ModalPlant.from_dict(m).at_tpi(tpi) for m in cfgd.get("family", [])]}
-            self._key = key
-        return self._held
+            held = {"plant0": plant0, "plant": plant0.at_tpi(tpi),
+                    "ctrl": controller_at_tpi(ctrl, plant0, tpi) if scaled else ctrl,
+                    "gain": controller_factor(plant0, tpi) if scaled else 1.0, "designer": None,
+                    "family": [ModalPlant.from_dict(m).at_tpi(tpi) for m in cfgd.get("family", [])]}
+            while len(self._held) >= self.HELD:
+                self._held.pop(next(iter(self._held)))
+        self._held[key] = held
+        return held
 
     def designer(self, cfgd: dict, tpi: float):
         """The warm designer of ``(configuration, tpi)`` (built on first use)."""
@@ -140,7 +156,11 @@ class CellRunner:
 
     def __call__(self, payload: dict) -> dict:
         with self._lock:
-            return self._compute(payload)
+            cpu, start = time.process_time(), time.time()
+            cell = self._compute(payload)
+            cell.update(cpu_s=time.process_time() - cpu, designers_built=self.designers_built,
+                        host=socket.gethostname(), blas_threads=blas_threads(), started=start, ended=time.time())
+            return cell
 
     def _compute(self, payload: dict) -> dict:
         cfgd, tpi, tracks = payload["config"], float(payload["tpi"]), float(payload["tracks"])
@@ -192,6 +212,13 @@ class CellRunner:
                 "tuned_profiles": {k: p.to_dict() for k, p in tuned.items()}}
 
 
+def blas_threads() -> int:
+    """The most threads any BLAS/OpenMP pool loaded in this process may use now (threadpoolctl; 0 when
+    none is loaded): what a cell reports, so a sweep shows its workers ran with one."""
+    from threadpoolctl import threadpool_info
+    return max((int(i.get("num_threads") or 0) for i in threadpool_info()), default=0)
+
+
 def compute_cell(payload: dict) -> dict:
     """Design and evaluate one cell with a fresh :class:`CellRunner`; never raises for design or
     evaluation failures (they are rows with ``status`` ``error`` / ``infeasible``).
@@ -205,7 +232,9 @@ def compute_cell(payload: dict) -> dict:
     -------
     dict
         ``key, tpi, tracks, config_hash, computation_id, pid, rows`` (one per kind)
-        and ``optimal_profile`` (a :meth:`Profile.to_dict` or None).
+        and ``optimal_profile`` (a :meth:`Profile.to_dict` or None); ``cpu_s`` (CPU [s] of the cell),
+        ``designers_built`` (by the runner so far), ``host``, ``blas_threads`` (:func:`blas_threads`),
+        ``started``, ``ended`` (unix time [s]).
     """
     return CellRunner()(payload)
 

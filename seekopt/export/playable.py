@@ -94,7 +94,8 @@ def export_designer(spec: str, plant, controller, imax: float, settle: float, fa
     margin = 0.97 - 2 * abs(plant.bias_a) / imax
     if margin <= 0.5:
         raise ExportError(f"bias {plant.bias_a:g} A is too large for Imax {imax:g} A")
-    return designer_factory(spec, family, drift, current_margin=margin)(plant, controller, imax, settle)
+    return designer_factory(spec, family, drift, long_seeks=False, current_margin=margin)(plant, controller, imax,
+                                                                                          settle)
 
 
 def export_longseek(spec: str, plant, controller, imax: float, settle: float, long_spec, family=(),

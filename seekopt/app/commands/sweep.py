@@ -24,8 +24,10 @@ def cmd_sweep(args) -> int:
     s = run_sweep(cfg, args.output, engine=args.dask or "process", workers=args.workers,
                   progress=not args.quiet, figures=not args.no_figures)
     others = f", {s.by_others} by another sweep" if s.by_others else ""
+    work = f", {s.cell_cpu_s / s.computed:.2f} s CPU per cell, {sum(s.designers_built.values())} designers " \
+        f"built on {len(s.designers_built)} workers" if s.computed else ""
     print(f"sweep: {s.total} cells ({s.skipped} saved before, {s.computed} computed in {s.wall_s:.1f} s "
-          f"on {s.engine}, {s.cells_per_s:.2f} cells/s{others}); table {s.table}")
+          f"on {s.engine}, {s.cells_per_s:.2f} cells/s{work}{others}); table {s.table}")
     if s.failed_cells or s.engine_errors:
         import pandas as pd
         df = pd.read_csv(s.table, keep_default_na=False)
