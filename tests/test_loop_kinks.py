@@ -9,7 +9,7 @@ to ``|slope change| * spacing / 8`` ~ 0.05 mA even for the best table on those k
 smoothed across the kinks (third differences, chosen by 2-fold cross-validation on the
 ``loop_to_design`` bias log) was 0.46 mA off there.  Measured here (the fit log settles on
 3409..29044 track, so the kink at 20000 is inside): max error 0.031 mA, validation RMS 0.161
-track (clean drive 0.141); the 2-fold choice gave 0.034 mA on this log too -- it is a guard of
+track (clean drive 0.1408); the 2-fold choice gave 0.034 mA on this log too -- it is a guard of
 the kinked case on an independent drive, the regression itself was measured on the study's log.
 """
 from __future__ import annotations
