@@ -148,8 +148,8 @@ def fit_position_bias(plant, data, settings):
     ``settings.bias_knots`` equally spaced knots over ``data.domain`` (the positions the fit
     and validation logs visit: the table is defined wherever the model will be simulated),
     values by least squares jointly with the base, with a roughness penalty (second or third
-    differences, or a smooth count of kinks) whose order and weight are chosen by 2-fold
-    cross-validation over seeks
+    differences, or a smooth count of kinks) whose order and weight are chosen by
+    ``settings.bias_cv_folds``-fold cross-validation over seeks
     (:func:`identification.loop.stats.smooth_lstsq`: a smooth flex-cable bias and a table with
     kinks alike).  A force error of 1e-5 A already shows as about a track over a 10 ms window,
     so the table must interpolate between the positions where the head dwelt to the
@@ -172,7 +172,8 @@ def fit_position_bias(plant, data, settings):
     feats = [eng.resp(force=data.on_grid(h)) for h in hats(g.position, knots)]
     P = eng.project(eng.target(), *[allb[i] for i in keep], *feats)
     nb = len(keep)
-    th, edf, order, lam = smooth_lstsq(P[:, 0], P[:, 1:], nb, data.windows)
+    th, edf, order, lam = smooth_lstsq(P[:, 0], P[:, 1:], nb, data.windows,
+                                       folds=int(settings.bias_cv_folds))
     full = np.zeros(len(allb))
     full[keep] = th[:nb]
     k = float(full[0])
@@ -181,7 +182,7 @@ def fit_position_bias(plant, data, settings):
     p = refit_base(base.copy(bias_a=plant.bias_a, effects=base.effects + [eff]), data)
     return Fit("position_bias", p, max(edf - 1.0, 1.0), p.effects[-1].params,
                f"{K} knots over {knots[0]:.0f}..{knots[-1]:.0f} track (fit data {lo:.0f}..{hi:.0f}), "
-               f"{order} roughness penalty chosen by 2-fold cross-validation over seeks: "
+               f"{order} roughness penalty chosen by {int(settings.bias_cv_folds)}-fold cross-validation over seeks: "
                f"{edf:.1f} effective parameters")
 
 

@@ -52,6 +52,9 @@ class LoopSettings:
         A declared mode at least this damped [-] may be replaced by an amplifier lag.
     bias_knots : int
         Knots of the position-bias table over the positions the logs visit [-].
+    bias_cv_folds : int
+        Folds over seeks of the cross-validation that chooses the bias table's roughness
+        penalty and weight [-] (:func:`identification.loop.stats.smooth_lstsq`).
     search_samples : int
         Samples of the fit data used by the nonlinear searches (every k-th seek) [-].
     friction_table_knots : int
@@ -91,6 +94,7 @@ class LoopSettings:
     max_mode_zeta: float = 0.5
     damped_mode_zeta: float = 0.3
     bias_knots: int = 65
+    bias_cv_folds: int = 5
     search_samples: int = 8000
     friction_table_knots: int = 5
     friction_table_evals: int = 150
