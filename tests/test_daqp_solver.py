@@ -155,3 +155,14 @@ def test_unproven_package_infeasible_is_rechecked_never_taken(monkeypatch):
     sol = wide.solve(*good)
     assert sol.outcome is solvmod.QPStatus.OPTIMAL and sol.lam_a.shape == (1,)
     assert np.allclose(sol.x, ok.x, atol=1e-9)
+
+
+def test_qpoases_prints_no_banner(capfd):
+    """qpOASES prints its licence banner when casadi makes its memory (first solve), not at
+    construction: seekopt silences it there too, so sweeps and the CLI print nothing of it."""
+    import numpy as np
+    from seekopt.design.solvers import ConicQP
+    q = ConicQP(2, 1, "qpoases")
+    r = q.solve(np.eye(2), np.array([1.0, 1.0]), np.array([[1.0, 1.0]]), [-1.0], [1.0], [-5.0, -5.0], [5.0, 5.0])
+    assert np.allclose(r.x, [-0.5, -0.5])
+    assert "qpOASES" not in capfd.readouterr().out

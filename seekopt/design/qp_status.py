@@ -10,6 +10,7 @@ in :mod:`seekopt.design.solvers` and :mod:`seekopt.design.daqp_solver`.
 from __future__ import annotations
 
 import contextlib
+import io
 import os
 import sys
 from dataclasses import dataclass, field
@@ -71,22 +72,34 @@ def classify_status(solver: str, raw, success: bool) -> QPStatus:
     return QPStatus.NUMERICAL
 
 
+def _flush_c_stdio() -> None:
+    """``fflush(NULL)`` of the C library (a no-op where it cannot be loaded)."""
+    try:
+        import ctypes
+        ctypes.CDLL(None).fflush(None)
+    except (OSError, AttributeError, TypeError):
+        pass
+
+
 @contextlib.contextmanager
 def _quiet_stdout(active: bool = True):
-    """Silence the C-level stdout (file descriptor 1) inside the block."""
+    """Silence stdout inside the block: the C-level file descriptor 1 and Python's ``sys.stdout`` (casadi
+    prints its plugins' messages through Python)."""
     if not active:
         yield
         return
     sys.stdout.flush()
     try:
         saved = os.dup(1)
-    except OSError:         # no file descriptor 1 (embedded use): nothing to silence
-        yield
+    except OSError:         # no file descriptor 1 (embedded use): Python's stdout only
+        with contextlib.redirect_stdout(io.StringIO()):
+            yield
         return
     try:
-        with open(os.devnull, "w") as null:
+        with open(os.devnull, "w") as null, contextlib.redirect_stdout(io.StringIO()):
             os.dup2(null.fileno(), 1)
             yield
+            _flush_c_stdio()    # C stdio buffers (full when stdout is a pipe or file) go to /dev/null too
     finally:
         os.dup2(saved, 1)
         os.close(saved)

@@ -107,6 +107,10 @@ class ConicQP:
 
     def _solve_numpy(self, H, g, A, lba, uba, lbx, ubx, x0=None) -> QPSolution:
         """:meth:`solve` for numpy ``H`` (n, n) and ``A`` (m, n), through :meth:`_buffers`."""
+        with _quiet_stdout(self.plugin == "qpoases"):   # qpOASES prints its banner when its memory is made
+            return self._solve_buffers(H, g, A, lba, uba, lbx, ubx, x0)
+
+    def _solve_buffers(self, H, g, A, lba, uba, lbx, ubx, x0):
         buf, run, ins, outs = self._buffers()
         ins["h"].reshape(self.n, self.n, order="F")[:] = H
         ins["a"].reshape(self.m, self.n, order="F")[:] = A
@@ -145,7 +149,8 @@ class ConicQP:
             args["lam_x0"] = lam_x0
         t0, c0 = time.perf_counter(), time.process_time()
         try:
-            res = self._solver(**args)
+            with _quiet_stdout(self.plugin == "qpoases"):
+                res = self._solver(**args)
             st = self._solver.stats()
             raw, ok = st.get("return_status", st.get("unified_return_status", "?")), bool(st.get("success", False))
         except RuntimeError as exc:       # ill-posed data or a solver crash: numerical trouble, not a proof
