@@ -44,7 +44,7 @@ from seekopt.design.metrics import DEFAULT_TAIL_S
 from seekopt.design.problem import ProblemError, SeekProblem, check_closed_loop
 from seekopt.design.profiles import reference_from_model, t_bang_bang
 from seekopt.design.result import DesignError, DesignInfeasible, DesignResult, SolveStats
-from seekopt.design.search import bisect_length, gallop_length, predict_length, prior_length
+from seekopt.design.settle_search import SettleSearch
 from seekopt.design.solvers import DAQP_PKG, SolverChain
 from seekopt.design.verification import packaged_design, played_design, verified_design
 from seekopt.design.working_set import WorkingSetQP
@@ -66,7 +66,7 @@ WORKING_SET_MIN_ROWS = 2500
 MAP_HEADROOM = 128
 
 
-class SeekDesigner:
+class SeekDesigner(SettleSearch):
     """Seek designer for one :class:`SeekProblem`; build once, design many times.
 
     ``SeekDesigner(problem)``; the former keyword form ``SeekDesigner(plant, controller, imax, settle,
@@ -335,68 +335,6 @@ class SeekDesigner:
         hi, best = self._bisect(qp, K, lo, c, sol, stats)
         return self._verify(qp, c, hi, best, K, stats, n_rigid)
 
-    def _probe(self, qp, K, stats: SolveStats):
-        """``probe(n, warm, confirm)``: the band-constrained QP at ``n`` seek samples (for :mod:`search`)."""
-        return lambda n, warm=None, confirm=True: self._solve(qp, K, n, self.beta, stats, warm=warm, confirm=confirm)
-
-    def _bisect(self, qp, K, lo, hi, best, stats, floor=None):
-        """:func:`~seekopt.design.search.bisect_length` on structure ``qp``."""
-        def unconfirmed(n):
-            key = (id(qp), n)
-            found = key in stats.unconfirmed
-            stats.unconfirmed.discard(key)
-            return found
-        return bisect_length(self._probe(qp, K, stats), lo, hi, best, unconfirmed, floor)
-
-    def _predict(self, n_rigid: int) -> int:
-        """Settle samples predicted from this designer's earlier designs (:func:`predict_length`), else
-        from the rigid bang-bang samples alone (:func:`prior_length`)."""
-        n = predict_length(self._history, n_rigid)
-        return prior_length(n_rigid) if n is None else n
-
-    def _predicted_search(self, K, n_rigid, first, lo, stats):
-        """Search from the predicted length (:meth:`_predict`): in the size class the old scan would end
-        in, probe the predicted length and its neighbour, gallop (steps 1, 2, 4, ...) towards the
-        boundary, then bisect.  When the class holds no feasible length, its longest seek is solved
-        with ``confirm=True``: a proof moves the search on to the next class (from the length after
-        it, as the scan would end there), anything else returns None and the class scan decides.
-        Without an earlier design nearby the prediction is :func:`prior_length`'s.
-        Returns ``(qp, class, N, answer)`` or None (the class scan decides)."""
-        n_pred = self._predict(n_rigid)
-        classes = self._classes(first)
-        # a prediction one past a class's longest seek starts in that class (its answers there are often
-        # one sample shorter: the class above would be built and searched, then left again)
-        c = next((x for x in classes if x >= n_pred - 1), classes[-1])
-        went_down = False
-        while True:
-            qp = self._structure(c, False)
-            tops = {}
-
-            def probe(n, warm=None, confirm=True, _p=self._probe(qp, K, stats), _c=c, _tops=tops):
-                sol = _p(n, warm, confirm)
-                if n == _c and confirm:
-                    _tops[n] = sol
-                return sol
-            found = gallop_length(probe, lo, min(max(n_pred, lo + 1), c), c)
-            if found is None:   # nothing in this class (search steps): is its longest seek proven infeasible?
-                later = [x for x in classes if x > c]
-                if went_down or not later or c <= lo:
-                    return None
-                top = tops.get(c) or self._solve(qp, K, c, self.beta, stats)   # gallop confirmed it
-                if not top.infeasible:
-                    return None     # feasible after all, or undecided: the class scan decides
-                lo, c, n_pred = c, later[0], c + 1
-                continue
-            lo_c, hi, best = found
-            hi, best = self._bisect(qp, K, lo_c, hi, best, stats, floor=lo)
-            # the scan takes the first class whose longest seek is feasible: a smaller class that holds
-            # this length is that class (re-searched there, from this length)
-            prev = [x for x in classes if x < c]
-            if prev and hi <= prev[-1] and prev[-1] >= first:
-                c, n_pred, went_down = prev[-1], hi, True
-                continue
-            return qp, c, hi, best
-
     def _verify(self, qp, c, hi, best, K, stats, n_rigid):
         """Verify by simulation; step up on failure (tail beyond the QP horizon, row thinning)."""
         for N in range(hi, c + 1):
@@ -412,48 +350,6 @@ class SeekDesigner:
             return self._nominal_first(qp, best, K, N, stats, max(n_rigid - 2, 0)) or packaged_design(
                 self, played, stats)
         raise DesignError(f"no design for {K:g} tracks passed the simulator check up to {c} samples")
-
-    def _nominal_first(self, qp, best, K, N, stats: SolveStats, lo: int):
-        """Lexicographic second stage of the minimum seek-settle design over a plant set: the set's worst
-        seek-settle ``N`` (the first stage, every plant's band from ``N`` on) is kept, and among the
-        designs that hold it, the one whose nominal plant settles first (its band rows from ``n0 < N``
-        on, the seek still ``N`` samples long; every other plant keeps its rows from ``N``).  The worst
-        case over the set is no later than the first stage's, the nominal plant no later; the same margins,
-        guard and currents.  Returns the verified design, or None (nothing earlier: keep the first stage's).
-
-        Every probe here is a search step (``confirm=False``): a working set's unproven "infeasible" ends
-        the refinement without the re-check and certificate a length the set's ``N`` rests on gets
-        (10-250 ms each, a third of a robust design's CPU).  Nothing is declared infeasible from it:
-        the design returned is verified either way, at worst the first stage's or a nominal settle one
-        sample later than a proof would have found (none in ``studies/design_speed.py``'s 26 robust cells:
-        every such verdict the confirmation re-checked was proven infeasible)."""
-        if len(self.plants) < 2 or not self.problem.nominal_first or N - 1 <= lo:
-            return None
-
-        def probe(n0, warm=None, _confirm=None):     # the search's protocol; never confirmed here (above)
-            return self._solve(qp, K, N, self.beta, stats, warm=warm, confirm=False, nominal_from=n0)
-        s = probe(N - 1, best.x)
-        if not s.success:
-            return None
-        hi, best, step, low = N - 1, s, 1, lo         # gallop down (1, 2, 4, ...), then bisect
-        while hi - step > lo:
-            t = probe(hi - step, best.x)
-            if not t.success:
-                low = hi - step
-                break
-            hi, best, step = hi - step, t, 2 * step
-        n0, best = bisect_length(probe, low, hi, best, lambda n: False, floor=lo)
-        for n in range(n0, N):            # the simulator decides; step up on failure
-            if n != n0:
-                best = probe(n, best.x)
-                if not best.success:
-                    continue
-            try:
-                return self._finish(qp, best, K, N, stats, f"min_settle/{self.objective_kind}/nominal_first",
-                                    strict=True, settle_n=n)
-            except DesignError:
-                continue
-        return None
 
     # ------------------------------------------------------------------ verification
     def _finish(self, qp, sol, K, N, stats: SolveStats, objective, strict, settle_n=None) -> DesignResult:

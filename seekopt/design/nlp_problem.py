@@ -51,8 +51,9 @@ import numpy as np
 from identification.model.ops import SmoothingSettings, casadi_ops
 from identification.model.plant import ModalPlant
 
-import seekopt.design.qp as _qp
 from seekopt.design.nlp_basis import correction_knots, hat_basis
+from seekopt.design.nlp_loop import close_sample, closed_loop_sample
+from seekopt.design.nlp_spread import RobustSpread
 
 __all__ = ["NLPSettings", "NLPSolve", "nlp_smoothing", "closed_loop_sample", "close_sample", "RobustSpread", "SeekNLP",
            "BUILD_COUNT"]
@@ -163,7 +164,8 @@ class NLPSolve:
         return dict(self.__dict__)
 
 
-# ------------------------------------------------------------------------------- the loop
+# ------------------------------------------------------------------------------- the loop's kinks
+# (the loop's servo sample: seekopt.design.nlp_loop; the robust set: seekopt.design.nlp_spread)
 def nlp_smoothing(plant: ModalPlant, controller, settings: NLPSettings) -> SmoothingSettings:
     """The kinks' smoothing in the NLP of ``plant``: ``settings.smoothing`` with the friction sign
     smoothed over at least ``k0 c dt / friction_step`` [track/s] (``c`` the Coulomb level [A], ``dt``
@@ -179,100 +181,6 @@ def nlp_smoothing(plant: ModalPlant, controller, settings: NLPSettings) -> Smoot
     dt = 1.0 / (float(controller.sample_rate_hz) * int(controller.fast_multiple))
     need = float(plant.k0) * c * dt / float(settings.friction_step)
     return replace(sm, friction_velocity_tps=max(sm.friction_velocity_tps, need))
-
-
-def closed_loop_sample(plant: ModalPlant, controller, ops=None) -> tuple:
-    """One servo sample of the 2DOF loop on the full plant as a CasADi ``Function``.
-
-    ``F(x, hist, xc, u, r, t, i) -> (x+, hist+, xc+, y, i_loop)``: plant state and delay line
-    (:class:`DiscretePlant` at the sub-step ``1 / (L fs)``), controller state (lifted), the
-    feedforward current incl. hold ``u`` [A] and the reference ``r`` [track] of the sample, its
-    time ``t`` [s]; ``y`` the measured position at the start of the sample and ``i_loop`` the ``L``
-    sub-step currents the loop commands, ``u + C_l x_c + D_l (r - y)``.  The plant is stepped with
-    the currents ``i`` given as an input: the loop is closed by ``i = i_loop`` (an equality of the
-    NLP, or :func:`close_sample` for simulation).  Returns ``(F, (nx, nh, nc), dp)``.
-    """
-    ops = casadi_ops() if ops is None else ops
-    fs, L = float(controller.sample_rate_hz), int(controller.fast_multiple)
-    dt = 1.0 / (fs * L)
-    dp = plant.discretize(dt)
-    A, B, C, D = (np.asarray(a, dtype=float) for a in controller.lifted_ss())
-    nc = A.shape[0]
-    nx, nh = dp.n, dp.m + 1
-    x0, h0, xc = ca.SX.sym("x", nx), ca.SX.sym("hist", nh), ca.SX.sym("xc", nc)
-    u, r, t, i = ca.SX.sym("u"), ca.SX.sym("r"), ca.SX.sym("t"), ca.SX.sym("i", L)
-    y = dp.measure(x0, t, ops)
-    e = r - y
-    i_loop = u + ca.mtimes(ca.DM(C), xc) + ca.DM(D) * e
-    xcn = ca.mtimes(ca.DM(A), xc) + ca.DM(B) * e
-    x, h = x0, h0
-    for j in range(L):
-        x, h = dp.transition(x, h, i[j], t + j * dt, ops)
-    F = ca.Function("servo_sample", [x0, h0, xc, u, r, t, i], [x, h, xcn, y, i_loop],
-                    ["x", "hist", "xc", "u", "r", "t", "i"], ["x_next", "hist_next", "xc_next", "y", "i_loop"])
-    return F, (nx, nh, nc), dp
-
-
-def close_sample(F) -> ca.Function:
-    """``F`` with the loop closed (``i = i_loop``): ``(x, hist, xc, u, r, t) -> (x+, hist+, xc+, y, i)``."""
-    x, h, xc = (ca.SX.sym(n, F.size1_in(k)) for k, n in enumerate(("x", "hist", "xc")))
-    u, r, t = ca.SX.sym("u"), ca.SX.sym("r"), ca.SX.sym("t")
-    i = F(x, h, xc, u, r, t, ca.SX.zeros(F.size1_in(6)))[4]
-    return ca.Function("closed_sample", [x, h, xc, u, r, t], list(F(x, h, xc, u, r, t, i)[:4]) + [i])
-
-
-# ------------------------------------------------------------------------------- robust set
-class RobustSpread:
-    """The robust set's spread around the nominal loop, for seeks of at most ``nmax`` samples.
-
-    ``maps``: :class:`seekopt.design.qp.LoopMaps` of the set's (linear) plants, nominal first, horizon
-    above ``horizon``.  Every other plant's PES [band] and sub-step current [Imax] minus the nominal's
-    is linear in the scaled ``(v, q)``: ``dT_u Imax v + dT_r |K| q + K ds_r``.  Band rows of the NLP on
-    the samples ``band_samples`` (the linear designer's rule, :func:`seekopt.design.qp.set_row_samples`
-    with its row ``stride``) (:meth:`rows`); :meth:`spread` for checks and the current envelope.
-
-    ``current_only``: the last ``current_only`` maps are plants the design holds **only** the current limit
-    on (the torque-constant headroom of :class:`EffectAwareDesigner`: the design plant with its gain
-    scaled by ``1 +- kt_uncertainty``); they give no band rows and no band spread.
-    """
-
-    def __init__(self, maps: list, nmax: int, horizon: int, band: float, nmax_prev: int = 0, stride: int = 1,
-                 current_only: int = 0):
-        N, H = int(nmax), int(horizon)
-        ks = np.arange(H + 1)
-        (Y0u, Y0r, y0), (I0u, I0r, i0) = maps[0].position_rows(ks, N), maps[0].current_rows(H, N)
-        self.DY, self.dy, self.DI, self.di = [], [], [], []
-        for m in maps[1:]:
-            (Yu, Yr, yj), (Iu, Ir, ij) = m.position_rows(ks, N), m.current_rows(H, N)
-            self.DY.append(np.hstack([Yu - Y0u, Yr - Y0r]) / band); self.dy.append((yj - y0) / band)
-            self.DI.append(np.hstack([Iu - I0u, Ir - I0r])); self.di.append(ij - i0)
-        self.n, self.N, self.H = len(maps) - 1, N, H
-        self.n_band = self.n - int(current_only)     # plants with band rows (the first n_band of the others)
-        if self.n_band < 0:
-            raise ValueError(f"{current_only} current-only plants of a set of {self.n} others")
-        del self.DY[self.n_band:], self.dy[self.n_band:]
-        # robust rows of the NLP: the linear designer's rows of the set's other plants
-        # (seekopt.design.qp.set_row_samples, ``stride`` its thinning of this class) on the samples that can
-        # follow a seek of this class (k > nmax_prev; the spread is re-checked on every sample and the
-        # simulator plays every sample); currents on every sub-step of the seek and 8 samples more (as the
-        # linear designer)
-        kb = _qp.set_row_samples(N, H + 1, stride)
-        self.band_samples = kb[kb > nmax_prev]
-        self.current_substeps = np.arange(min(H, N + 8) * maps[0].L)
-
-    def rows(self):
-        """``(DY, dy, DI, di)``: the spread on the robust rows, plant-major ``(n_band, rows, 2N)`` /
-        ``(n_band, rows)`` [band] and ``(n, rows, 2N)`` / ``(n, rows)`` [A]; ``DY, dy`` None without band plants."""
-        kb, kc = self.band_samples, self.current_substeps
-        band = (np.stack([D[kb] for D in self.DY]), np.stack([d[kb] for d in self.dy])) if self.n_band else (None, None)
-        return (*band, np.stack([D[kc] for D in self.DI]), np.stack([d[kc] for d in self.di]))
-
-    def spread(self, v, q, K: float, imax: float):
-        """``(dE (n_band, H + 1) [band], dI (n, H L) [Imax])`` for scaled feedforward ``v`` and reference ``q``."""
-        w = np.r_[imax * np.asarray(v[:self.N]), abs(K) * np.asarray(q[:self.N])]
-        dE = np.array([D @ w + K * d for D, d in zip(self.DY, self.dy)]) if self.n_band else np.zeros((0, self.H + 1))
-        dI = np.array([(D @ w + K * d) / imax for D, d in zip(self.DI, self.di)])
-        return dE, dI
 
 
 # ------------------------------------------------------------------------------- the NLP
