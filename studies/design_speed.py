@@ -41,16 +41,27 @@ KS = (1.0, 10.0, 50.0, 100.0, 130.0, 170.0, 220.0, 290.0, 380.0, 500.0, 650.0, 8
 def worker(plants_json: str, ks: list, out: str, variant: str = "default") -> None:
     """Runs inside the tree under test (its ``PYTHONPATH``); only API common to all revisions
     (``variant="working_set"``: this tree's designer with ``SolverSettings(working_set=True)``)."""
+    import inspect
     import numpy as np
-    from identification.model.plant import ModalPlant
-    try:
+    tree = Path.cwd().resolve()
+    # the layout is read from the tree on disk, not from what imports: with an editable install of another
+    # tree, a module the older tree lacks (seekopt.design) is found in the installed tree instead
+    if (tree / "identification" / "model").is_dir():
+        from identification.model.plant import ModalPlant
+    else:                                   # flat layout (37b8cdb)
+        from identification.plant import ModalPlant
+    if (tree / "seekopt" / "design").is_dir():
         from seekopt.design.ocp import RobustSpec, SeekDesigner
         from seekopt.design.metrics import evaluate_profile
         from seekopt.drive.controller import Controller
-    except ImportError:                     # flat layout (37b8cdb)
+    else:                                   # flat layout (37b8cdb)
         from seekopt.ocp import RobustSpec, SeekDesigner
         from seekopt.metrics import evaluate_profile
         from seekopt.controller import Controller
+    for obj in (ModalPlant, SeekDesigner, evaluate_profile, Controller):
+        src = Path(inspect.getsourcefile(obj)).resolve()
+        if tree not in src.parents:
+            raise SystemExit(f"design_speed worker: {obj.__name__} imported from {src}, not from the tree under test {tree}")
     spec = json.loads(Path(plants_json).read_text())
     truth = ModalPlant.from_dict(spec["truth"])
     ctrl = Controller.nss()
