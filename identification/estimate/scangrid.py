@@ -1,5 +1,5 @@
 """The frequency grids of the robust identification's scan for missed modes
-(:meth:`identification.estimate.robust._Run.search`).
+(:meth:`identification.estimate.modescan.ModeScan.search`).
 """
 from __future__ import annotations
 
