@@ -107,11 +107,16 @@ def smooth_lstsq(y: np.ndarray, X: np.ndarray, n_free: int, windows,
         R[n_free:, n_free:] = D.T @ (w[:, None] * D)
         return R
 
-    def fit(Gi, bi, D, lam, kind):
+    def unit_penalty(D):
+        """``(R, c)``: the unweighted penalty matrix of ``D`` and its scale (a typical entry's penalty ~ its
+        data weight); one per ``D``, shared by every fold and ``lam``."""
         R = penalty_matrix(D, np.ones(len(D)))
-        c = 1.0 / max(float(np.median(np.diag(R)[n_free:])), 1e-300)   # a typical entry's penalty ~ its data weight
-        phi = np.linalg.solve(Gi + lam * c * R + ridge, bi)
+        return R, 1.0 / max(float(np.median(np.diag(R)[n_free:])), 1e-300)
+
+    def fit(Gi, bi, D, Rc, lam, kind):
+        R, c = Rc
         A = Gi + lam * c * R + ridge
+        phi = np.linalg.solve(A, bi)
         if kind in ("L1", "L0"):
             r0 = np.abs(D @ phi[n_free:])
             scale = float(np.median(r0)) or 1.0       # |d| / (|d| + eps) ~ L1 with weights in the L2 units
@@ -126,11 +131,12 @@ def smooth_lstsq(y: np.ndarray, X: np.ndarray, n_free: int, windows,
     best = None
     for kind, k in penalties:
         D = np.diff(np.eye(K), k, axis=0) / s[n_free:]
+        Rc = unit_penalty(D)
         for lam in lams:
-            cv = sum(float(np.sum((yo - Xo @ fit(Gi, bi, D, lam, kind)[0]) ** 2)) for Gi, bi, Xo, yo in parts)
+            cv = sum(float(np.sum((yo - Xo @ fit(Gi, bi, D, Rc, lam, kind)[0]) ** 2)) for Gi, bi, Xo, yo in parts)
             if best is None or cv < best[0]:
-                best = (cv, kind, k, lam, D)
-    _, kind, k, lam, D = best
-    phi, A = fit(G, b, D, lam, kind)
+                best = (cv, kind, k, lam, D, Rc)
+    _, kind, k, lam, D, Rc = best
+    phi, A = fit(G, b, D, Rc, lam, kind)
     edf = float(np.trace(np.linalg.solve(A, G)[n_free:, n_free:]))
     return phi / s, edf, f"{kind} difference-{k}", float(lam)

@@ -43,15 +43,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from seekopt.design.profiles import rigid_position_kernel
+
 __all__ = ["AccelStep", "AccelStepQP", "rigid_position_kernel"]
-
-
-def rigid_position_kernel(n: int, delay_samples: float, c: float) -> np.ndarray:
-    """Rigid position [track] at samples ``0..n-1`` after a unit current [A] held over sample 0 (ZOH,
-    input delay ``delay_samples``; ``c = k0 Ts^2``): ``c f(q - tau)`` with ``f(t) = 0, t^2/2, t - 1/2`` for
-    ``t <= 0, 0 < t < 1, t >= 1``."""
-    t = np.arange(int(n)) - float(delay_samples)
-    return c * np.where(t <= 0, 0.0, np.where(t < 1, 0.5 * t * t, t - 0.5))
 
 
 @dataclass
@@ -118,13 +112,8 @@ class AccelStep:
             raise ValueError(f"{tracks:g} tracks do not fit n = {n}, m = {m} (s = {s:g})")
         L = m + n + self.n + int(math.ceil(self.delay_samples)) + 2
         uj, rj = self.extended(L)
-
-        def four(x):
-            y = x.copy()
-            y[n:] -= x[:L - n]; y[m:] -= x[:L - m]; y[m + n:] += x[:L - m - n]
-            return y
         sign = math.copysign(s, tracks)
-        u, r = sign * four(uj), sign * four(rj)
+        u, r = sign * self.four_term(uj, n, m, L), sign * self.four_term(rj, n, m, L)
         u[m + n + self.n:] = 0.0                  # exactly zero (the four constants cancel)
         r[-1] = float(tracks)                     # exact end (s c I0 n m = K on the parabola)
         return u, r, s

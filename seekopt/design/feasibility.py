@@ -148,7 +148,8 @@ def hold_current(plant: ModalPlant, position: float, dt: float, limit_a: float =
     a, b = -limit_a, limit_a
     if net(a) * net(b) > 0:
         raise StartError(f"no current within +-{limit_a:g} A holds the head at track {position:g}")
-    return float(_brentq()(net, a, b, xtol=1e-14, rtol=1e-14))
+    from scipy.optimize import brentq    # imported on first use (~0.2 s of a seekopt design start-up)
+    return float(brentq(net, a, b, xtol=1e-14, rtol=1e-14))
 
 
 def play_seek(plant: ModalPlant, controller, profile: Profile, start_track: float = 0.0, *,
@@ -270,9 +271,10 @@ def compensate(plant: ModalPlant, controller, profile: Profile, start_track: flo
     fb = sim.feedback_a
     dl, dp = lin.discretize(dt), plant.discretize(dt)
     out = np.empty(m)
+    from scipy.optimize import brentq    # imported on first use (~0.2 s of a seekopt design start-up)
     for k in range(m):
         target = dl.command(u[k] + uhl + fb[k], x[k]) + dl.net_force(x[k], v[k])
-        out[k] = _brentq()(lambda c: dp.command(c + uh + fb[k], x[k]) + dp.net_force(x[k], v[k]) - target,
+        out[k] = brentq(lambda c: dp.command(c + uh + fb[k], x[k]) + dp.net_force(x[k], v[k]) - target,
                                  -10.0, 10.0, xtol=1e-12)
     peak = float(np.max(np.abs(out + uh + fb)))
     comp = Profile(out[:n], profile.reference_track.copy(), profile.sample_rate_hz, profile.tracks, profile.imax_a,
@@ -285,10 +287,3 @@ def compensate(plant: ModalPlant, controller, profile: Profile, start_track: flo
                                                                  - dl.command(u[k] - h + uhl + fb[k], x[k])) / (2 * h)
                                                                 for k in range(n)])
     return comp, peak, (gain, u[:n] - gain * out[:n])
-
-
-def _brentq():
-    """:func:`scipy.optimize.brentq`, imported on first use (scipy.optimize costs ~0.2 s of a
-    ``seekopt design`` start-up that seldom needs it)."""
-    from scipy.optimize import brentq
-    return brentq

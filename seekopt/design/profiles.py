@@ -29,7 +29,7 @@ import numpy as np
 
 from identification.model.plant import ModalPlant, atomic_write_text as _atomic_write
 
-__all__ = ["Profile", "ProfileError", "rigid_endpoint_matrix", "normalise_rest_to_rest", "exact_rest",
+__all__ = ["Profile", "ProfileError", "rigid_endpoint_matrix", "rigid_position_kernel", "normalise_rest_to_rest", "exact_rest",
            "sine_profile", "windowed_sine_profile", "bang_bang_profile", "t_bang_bang",
            "shortest_baseline", "reference_from_model", "finish_profile"]
 
@@ -150,6 +150,14 @@ class Profile:
 
 
 # ------------------------------------------------------------------ rigid model
+def rigid_position_kernel(n: int, delay_samples: float, c: float) -> np.ndarray:
+    """Rigid position [track] at samples ``0..n-1`` after a unit current [A] held over sample 0 (ZOH,
+    input delay ``delay_samples``; ``c = k0 Ts^2``): ``c f(q - tau)`` with ``f(t) = 0, t^2/2, t - 1/2`` for
+    ``t <= 0, 0 < t < 1, t >= 1``."""
+    t = np.arange(int(n)) - float(delay_samples)
+    return c * np.where(t <= 0, 0.0, np.where(t < 1, 0.5 * t * t, t - 0.5))
+
+
 def rigid_endpoint_matrix(n: int, k0: float, ts: float) -> np.ndarray:
     """``M`` with ``M @ u = [position, velocity * ts]`` of the ZOH double integrator
     ``k0/s^2`` after ``n`` samples of ``u`` from rest (delay does not change the end state).

@@ -111,6 +111,7 @@ class StepQP:
 
     def __init__(self, maps, nmax, horizon, k0, fs, delay_samples, imax, band, bias, hf, nlo,
                  settings, rho=1e-2, rho_w=1e-3, quiet=0.2, quiet_after=32):
+        from seekopt.design.profiles import rigid_position_kernel
         from seekopt.design.qp import pes_row_samples, toeplitz_rows
         from seekopt.design.solvers import SolverChain, dm
         t0 = time.perf_counter()
@@ -118,10 +119,9 @@ class StepQP:
         self.N, self.H, self.imax, self.band, self.bias = N, H, float(imax), float(band), abs(float(bias))
         self.quiet, self.quiet_after = float(quiet), int(quiet_after)
         self.c = k0 / fs ** 2                      # track per (A sample^2)
-        t = (np.arange(H)[:, None] - np.arange(N)[None, :]) - delay_samples
         # reference base: the ZOH rigid response (with the delay), on its affine asymptote
         # c (k - tau - j - 1/2) from ``ceil(tau)`` samples after the step ends
-        self.ramp = self.c * np.where(t <= 0, 0.0, np.where(t < 1, 0.5 * t * t, t - 0.5))
+        self.ramp = toeplitz_rows(rigid_position_kernel(H, delay_samples, self.c), np.arange(H), N)
         self.k_extra = int(math.ceil(delay_samples - 1e-12))
         self.sigma = 1.0                                   # scale of the reference correction w [track]
         self.wmax = self.c * imax * N * N                  # |w| bound: loose (the objective keeps w small)

@@ -85,8 +85,10 @@ def loop_analysis(controller, plant_frf, freqs_hz, zoh: bool = True) -> LoopAnal
     S = 1.0 / (1.0 + Lf)
     T = Lf * S
 
+    from scipy.optimize import brentq    # imported on first use (~0.2 s of a seekopt design start-up)
+
     def roots(g, mask):  # refine each bracketing grid interval exactly
-        return [_brentq()(lambda x: g(Lfun(x)[0]), f[i], f[i + 1], xtol=1e-9 * f[i])
+        return [brentq(lambda x: g(Lfun(x)[0]), f[i], f[i + 1], xtol=1e-9 * f[i])
                 for i in np.nonzero(mask)[0]]
 
     lm = np.log(np.abs(Lf))
@@ -155,10 +157,3 @@ def plot_loop_analysis(res: LoopAnalysis, path) -> Path:
         a.grid(True, which="both", alpha=0.3)
     fig.savefig(path, dpi=110)
     return Path(path)
-
-
-def _brentq():
-    """:func:`scipy.optimize.brentq`, imported on first use (scipy.optimize costs ~0.2 s of a
-    ``seekopt design`` start-up that seldom needs it)."""
-    from scipy.optimize import brentq
-    return brentq
