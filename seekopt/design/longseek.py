@@ -58,6 +58,16 @@ small QPs on the problem's set, kept) gives every such seek as four shifted copi
    by simulation (Imax, settled by the predicted sample); seeks up to ``LongSeekSpec.rest_to_rest_up_to_track``
    (``--rest-to-rest-up-to``) stay with the rest-to-rest QP, which settles sooner at a cost that grows
    with the length;
+   between ``compare_from_track = c I0 COMPARE_SAMPLES^2`` (10 samples at ``I0``) and ``long_from_track``
+   the composition (``n >= 10``) is taken when its predicted settle is within ``SETTLE_RATIO = 1.15`` of
+   ``T_bb + O``, ``O`` the settle overhead of the rest-to-rest design of ``compare_from_track`` tracks
+   (one cheap design per designer, kept): the rest-to-rest overhead grows with the length or stays flat
+   (robust sweep set, samples: 200k TPI 27.6 at 10 samples at ``I0``, 29.2 at 20, 27.6 at 25.5; 500k 36.6,
+   38.2, 40.2; 1000k 41.6, 49.8, 52.1, 50.3), so ``T_bb + O`` is a low estimate of the rest-to-rest settle.
+   Why: the rest-to-rest QPs near ``n_floor`` have 80-110 samples, and robust ones at high track density
+   took 5-282 s CPU each (``docs/results_sweep_scaling.md``), while the composition settles within
+   1.00-1.07x of them there (``docs/results_longseek.md``); on a single plant the rest-to-rest overhead is
+   small and this rule keeps the QP;
 3. else the rest-to-rest QP (:class:`~seekopt.design.designer.SeekDesigner`), its peak velocity checked
    against ``vmax``.
 
@@ -79,6 +89,12 @@ from seekopt.design.longseek_spec import (I0_FRACTION, LongSeekError, LongSeekSp
                                           t_accel_coast_decel, vmax_from_plant)
 from seekopt.design.longseek_steps import ACCEL_QUIET, StepDesigns
 from seekopt.design.velocity_step import VelocityStep
+
+#: Bang-bang samples at ``I0`` of the reference rest-to-rest seek of the dispatch (module notes, rule 2):
+#: its robust design is cheap at every track density of the sweep (0.2-3.9 s CPU at 200k-1000k TPI).
+COMPARE_SAMPLES = 10
+#: Settle allowed to a composition below ``long_from_track`` against the rest-to-rest design (issue 12).
+SETTLE_RATIO = 1.15
 
 __all__ = ["LongSeekSpec", "VelocityStep", "AccelStep", "LongSeekDesigner", "LongSeekError", "vmax_from_plant",
            "stroke_from_plant", "t_accel_coast_decel", "I0_FRACTION"]
@@ -133,6 +149,7 @@ class LongSeekDesigner(StepDesigns):
         self.accel_quiet = ACCEL_QUIET
         self._maps, self._maps_h = None, 0
         self._nominal = None
+        self._r2r_over = None
 
     # ------------------------------------------------------------------ steps (StepDesigns) and dispatch
     def n_floor(self) -> int:
@@ -145,18 +162,58 @@ class LongSeekDesigner(StepDesigns):
         return self.accel_step().accel_track * self.n_floor() ** 2
 
     def _is_long(self, K: float) -> bool:
-        """The dispatch rule (module notes): from :meth:`long_from_track` on (cheap test first: below
-        ``c lim 32^2`` no step is designed)."""
+        """May the acceleration step build this seek (module notes, rule 2)?  From :meth:`compare_from_track`
+        on, unless ``rest_to_rest_up_to_track`` keeps it (cheap test first: below ``c lim n^2`` with
+        ``n = COMPARE_SAMPLES`` no step is designed)."""
         if abs(K) < self._long_lower_bound():
             return False
         r2r = self.spec.rest_to_rest_up_to_track
         if r2r is not None and abs(K) <= r2r:
             return False
-        return abs(K) >= self.long_from_track()
+        return abs(K) > self.compare_from_track()
 
     def _long_lower_bound(self) -> float:
-        """``c I0_FRACTION lim 32^2`` [track]: no shorter seek is built from the step (``I0 <= I0_FRACTION lim``)."""
-        return self.plant.k0 / self.fs ** 2 * I0_FRACTION * self._lim() * 32 ** 2
+        """``c I0_FRACTION lim COMPARE_SAMPLES^2`` [track]: no shorter seek is built from the step
+        (``I0 <= I0_FRACTION lim``)."""
+        return self.plant.k0 / self.fs ** 2 * I0_FRACTION * self._lim() * COMPARE_SAMPLES ** 2
+
+    def compare_from_track(self) -> float:
+        """``c I0 COMPARE_SAMPLES^2`` [track]: the reference rest-to-rest seek; longer seeks below
+        :meth:`long_from_track` take the composition when it settles within ``SETTLE_RATIO`` of the
+        rest-to-rest settle predicted from it (:meth:`rest_to_rest_overhead`)."""
+        return self.accel_step().accel_track * COMPARE_SAMPLES ** 2
+
+    def rest_to_rest_overhead(self) -> float:
+        """Settle overhead [samples] (settle - T_bb) of the rest-to-rest design of :meth:`compare_from_track`
+        tracks on the design plant (designed once by the short designer, kept).  The overhead of the
+        rest-to-rest designs grows with the length or stays flat (robust sweep set, module notes), so
+        ``T_bb + overhead`` is a low estimate of a longer seek's rest-to-rest settle."""
+        if self._r2r_over is None:
+            from seekopt.design.profiles import t_bang_bang
+            from seekopt.design.result import DesignError, DesignInfeasible
+            K = self.compare_from_track()
+            try:
+                res = self.short_designer().design(K)
+            except (DesignError, DesignInfeasible):      # nothing to compare with: no composition below
+                self._r2r_over = -math.inf               # long_from_track
+            else:
+                self._r2r_over = (res.metrics.settle_time_s - t_bang_bang(K, self.plant.k0, self.imax)) * self.fs
+        return self._r2r_over
+
+    def _plan(self, K: float):
+        """The composition's plan (:func:`~seekopt.design.accel_step.plan_seek`) under the dispatch rule
+        (module notes, rule 2), or None: from :meth:`long_from_track` on any plan; below it, a plan whose
+        predicted settle is within ``SETTLE_RATIO (T_bb + rest_to_rest_overhead())``."""
+        lim = 0.5 * (1 + self.gamma) * self.imax - abs(self.plant.bias_a)
+        st = self.accel_step()
+        if abs(K) >= self.long_from_track():
+            return plan_seek(st, K, self.n_floor(), self._n_vmax(), self.settle, current_limit_a=lim)
+        plan = plan_seek(st, K, COMPARE_SAMPLES, self._n_vmax(), self.settle, current_limit_a=lim)
+        if plan is None:
+            return None
+        from seekopt.design.profiles import t_bang_bang
+        r2r = t_bang_bang(K, self.plant.k0, self.imax) * self.fs + self.rest_to_rest_overhead()
+        return plan if plan[2] <= SETTLE_RATIO * r2r else None
 
     def _n_vmax(self) -> float:
         v = self.spec.vmax_track_s
@@ -226,8 +283,7 @@ class LongSeekDesigner(StepDesigns):
         coast = self.needs_coast(K)
         fresh = self._accel is None          # the step's QPs count for the design that builds it
         if not coast and self._is_long(K):
-            plan = plan_seek(self.accel_step(), K, self.n_floor(), self._n_vmax(), self.settle,
-                             current_limit_a=0.5 * (1 + self.gamma) * self.imax - abs(self.plant.bias_a))
+            plan = self._plan(K)
             if plan is not None:
                 return self._design_accel(K, *plan, t0=t0, fresh=fresh)
         if not coast:
