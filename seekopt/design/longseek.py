@@ -48,7 +48,11 @@ small QPs on the problem's set, kept) gives every such seek as four shifted copi
 **The dispatch rule** (:meth:`LongSeekDesigner.design`, the rule of ``seekopt design``):
 
 1. with ``vmax`` and a seek long enough to coast at it (:meth:`~LongSeekDesigner.needs_coast`): the velocity
-   step to ``vmax`` and its mirror (above);
+   step to ``vmax`` and its mirror (above) on one plant; on a plant set the acceleration step of rule 2 with
+   ``n`` capped at ``vmax`` (the velocity step only when that gives no plan): on the robust set the
+   velocity step's QP (about 90 samples on every plant) took 13.9 s CPU and settled no sooner (1e4 and
+   15849 tracks at 2e6 track/s: 8.64 / 11.59 ms against 8.56 / 11.55 ms; 0.04-0.6 ms later beyond,
+   ``docs/results_longseek.md``), while on one plant it costs 0.6 s and settles 0.7 ms sooner;
 2. else, from ``long_from_track = c I0 n_floor^2`` tracks on (``n_floor = 32`` samples at ``I0``: the older
    terms are on the step's quiet rows; below the step's length ``N_J`` the transitions overlap and a plan
    is kept only if its nominal current is within ``(1 + gamma) / 2 Imax`` with the hold, as the velocity
@@ -274,18 +278,24 @@ class LongSeekDesigner(StepDesigns):
         plan settles on every plant) the rest-to-rest designer, its rigid peak velocity checked against
         ``vmax``.  Every long seek is verified by simulation on the design plant.
         """
-        from seekopt.design.designer import DesignError, DesignResult
-        from seekopt.design.metrics import evaluate_profile
-        from seekopt.design.profiles import Profile
+        from seekopt.design.designer import DesignError
         K = self.check_seek(tracks)
         t0 = time.process_time()
         vmax = self.spec.vmax_track_s
-        coast = self.needs_coast(K)
+        on_set = len(self.plants) > 1        # rule 1 on a plant set: the acceleration step capped at vmax
+        coast = not on_set and self.needs_coast(K)
         fresh = self._accel is None          # the step's QPs count for the design that builds it
         if not coast and self._is_long(K):
             plan = self._plan(K)
             if plan is not None:
-                return self._design_accel(K, *plan, t0=t0, fresh=fresh)
+                try:
+                    return self._design_accel(K, *plan, t0=t0, fresh=fresh)
+                except DesignError:
+                    if not (on_set and self.needs_coast(K)):
+                        raise
+                    coast = True             # the velocity step to vmax, as on one plant
+        if on_set and not coast:
+            coast = self.needs_coast(K)      # no plan (e.g. vmax below the step's floor): velocity step
         if not coast:
             res = self.short_designer().design(K)
             if vmax is None:
@@ -297,6 +307,33 @@ class LongSeekDesigner(StepDesigns):
             step = self.step_for(K)       # too fast and too short to coast at vmax: coast slower
         else:
             step = self.velocity_step(vmax)
+        return self._design_velocity(K, step, t0)
+
+    def design_velocity_step(self, tracks: float):
+        """The seek of ``tracks`` from the velocity step to ``vmax`` and its mirror (rule 1 on one plant),
+        whatever the dispatch; ``vmax`` must be set and the seek long enough to coast at it."""
+        K = self.check_seek(tracks)
+        if not self.needs_coast(K):
+            raise LongSeekError(f"seek of {K:g} tracks does not coast at vmax (or no vmax is set)")
+        return self._design_velocity(K, self.velocity_step(self.spec.vmax_track_s), time.process_time())
+
+    def design_accel_step(self, tracks: float):
+        """The seek of ``tracks`` from four acceleration steps (rule 2, ``n`` capped at ``vmax``, from
+        ``n_floor`` samples at ``I0`` on), whatever the dispatch."""
+        K = self.check_seek(tracks)
+        t0, fresh = time.process_time(), self._accel is None
+        lim = 0.5 * (1 + self.gamma) * self.imax - abs(self.plant.bias_a)
+        plan = plan_seek(self.accel_step(), K, self.n_floor(), self._n_vmax(), self.settle, current_limit_a=lim)
+        if plan is None:
+            raise LongSeekError(f"no acceleration-step plan settles the seek of {K:g} tracks on every plant")
+        return self._design_accel(K, *plan, t0=t0, fresh=fresh)
+
+    def _design_velocity(self, K: float, step: VelocityStep, t0: float):
+        """The seek of ``K`` tracks from ``step`` and its mirror (module notes), verified by simulation."""
+        from seekopt.design.designer import DesignError, DesignResult
+        from seekopt.design.metrics import evaluate_profile
+        from seekopt.design.profiles import Profile
+        vmax = self.spec.vmax_track_s
         u, r, m, s = step.compose(K)
         meta = {"plant_hash": self.plant.hash(), "controller_hash": self.controller.hash(),
                 "design_objective": "long_seek/accelerate-coast-arrive", "coast_samples": m,
