@@ -255,6 +255,8 @@ def test_dispatch_rule_rest_to_rest_below_long_from_track(free):
     assert 1000 < k_long < 3000       # measured 1627 tracks on the bundled drive (step of 22 samples)
     assert free.design(0.95 * k_long).profile.kind == "optimal"
     assert free.design(1.0001 * k_long).profile.kind == "long_seek"
+    # without LongSeekSpec.compare_below_long (seekopt design) nothing is compared below long_from_track
+    assert not free.spec.compare_below_long and free._r2r_over is None
 
 
 def test_acceleration_step_rides_the_parabola(free, plant, ctrl):
@@ -306,6 +308,7 @@ def test_composition_below_long_from_track_settles_within_1_15_of_rest_to_rest(p
     p = plant.at_tpi(600e3)
     c = controller_at_tpi(Controller.nss(), plant, 600e3)
     ls = designer_factory("ocp-robust")(p, c, IMAX, 0.1)
+    assert ls.spec.compare_below_long and LongSeekSpec.from_dict(ls.spec.to_dict()) == ls.spec
     K = 2069.0
     assert ls.compare_from_track() < K < ls.long_from_track()
     res = ls.design(K)

@@ -62,7 +62,8 @@ small QPs on the problem's set, kept) gives every such seek as four shifted copi
    by simulation (Imax, settled by the predicted sample); seeks up to ``LongSeekSpec.rest_to_rest_up_to_track``
    (``--rest-to-rest-up-to``) stay with the rest-to-rest QP, which settles sooner at a cost that grows
    with the length;
-   between ``compare_from_track = c I0 COMPARE_SAMPLES^2`` (10 samples at ``I0``) and ``long_from_track``
+   with ``LongSeekSpec.compare_below_long`` (sweeps: on; ``seekopt design``: off, as a single design would
+   pay the step and the reference first), between ``compare_from_track = c I0 COMPARE_SAMPLES^2`` (10 samples at ``I0``) and ``long_from_track``
    the composition (``n >= 10``) is taken when its predicted settle is within ``SETTLE_RATIO = 1.15`` of
    ``T_bb + O``, ``O`` the settle overhead of the rest-to-rest design of ``compare_from_track`` tracks
    (one cheap design per designer, kept): the rest-to-rest overhead grows with the length or stays flat
@@ -174,12 +175,16 @@ class LongSeekDesigner(StepDesigns):
         r2r = self.spec.rest_to_rest_up_to_track
         if r2r is not None and abs(K) <= r2r:
             return False
+        if not self.spec.compare_below_long:
+            return abs(K) >= self.long_from_track()
         return abs(K) > self.compare_from_track()
 
     def _long_lower_bound(self) -> float:
-        """``c I0_FRACTION lim COMPARE_SAMPLES^2`` [track]: no shorter seek is built from the step
+        """``c I0_FRACTION lim n^2`` [track] (``n``: ``COMPARE_SAMPLES`` with
+        ``LongSeekSpec.compare_below_long``, else :meth:`n_floor`): no shorter seek is built from the step
         (``I0 <= I0_FRACTION lim``)."""
-        return self.plant.k0 / self.fs ** 2 * I0_FRACTION * self._lim() * COMPARE_SAMPLES ** 2
+        n = COMPARE_SAMPLES if self.spec.compare_below_long else self.n_floor()
+        return self.plant.k0 / self.fs ** 2 * I0_FRACTION * self._lim() * n ** 2
 
     def compare_from_track(self) -> float:
         """``c I0 COMPARE_SAMPLES^2`` [track]: the reference rest-to-rest seek; longer seeks below
