@@ -63,8 +63,9 @@ small QPs on the problem's set, kept) gives every such seek as four shifted copi
    (``--rest-to-rest-up-to``) stay with the rest-to-rest QP, which settles sooner at a cost that grows
    with the length;
    with ``LongSeekSpec.compare_below_long`` (sweeps: on; ``seekopt design``: off, as a single design would
-   pay the step and the reference first), between ``compare_from_track = c I0 COMPARE_SAMPLES^2`` (10 samples at ``I0``) and ``long_from_track``
-   the composition (``n >= 10``) is taken when its predicted settle is within ``SETTLE_RATIO = 1.15`` of
+   pay the step and the reference first), from ``c I0 COMPOSE_FROM_SAMPLES^2`` (14 samples at ``I0``)
+   to ``long_from_track`` the composition (``n >= 14``) is taken when its predicted settle is within
+   ``SETTLE_RATIO = 1.15`` of
    ``T_bb + O``, ``O`` the settle overhead of the rest-to-rest design of ``compare_from_track`` tracks
    (one cheap design per designer, kept): the rest-to-rest overhead grows with the length or stays flat
    (robust sweep set, samples: 200k TPI 27.6 at 10 samples at ``I0``, 29.2 at 20, 27.6 at 25.5; 500k 36.6,
@@ -98,6 +99,10 @@ from seekopt.design.velocity_step import VelocityStep
 #: Bang-bang samples at ``I0`` of the reference rest-to-rest seek of the dispatch (module notes, rule 2):
 #: its robust design is cheap at every track density of the sweep (0.2-3.9 s CPU at 200k-1000k TPI).
 COMPARE_SAMPLES = 10
+#: Fewest samples at ``I0`` of a composition below ``long_from_track``: shorter seeks stay rest-to-rest, whose
+#: QPs are cheap there at every track density of the sweep (<= 1.4 s CPU robust, 200k-1000k TPI) and settle
+#: 11-14 % sooner than the composition at 300k-500k TPI.
+COMPOSE_FROM_SAMPLES = 14
 #: Settle allowed to a composition below ``long_from_track`` against the rest-to-rest design (issue 12).
 SETTLE_RATIO = 1.15
 
@@ -167,9 +172,10 @@ class LongSeekDesigner(StepDesigns):
         return self.accel_step().accel_track * self.n_floor() ** 2
 
     def _is_long(self, K: float) -> bool:
-        """May the acceleration step build this seek (module notes, rule 2)?  From :meth:`compare_from_track`
-        on, unless ``rest_to_rest_up_to_track`` keeps it (cheap test first: below ``c lim n^2`` with
-        ``n = COMPARE_SAMPLES`` no step is designed)."""
+        """May the acceleration step build this seek (module notes, rule 2)?  From ``COMPOSE_FROM_SAMPLES``
+        samples at ``I0`` on with ``compare_below_long``, else from :meth:`long_from_track`; unless
+        ``rest_to_rest_up_to_track`` keeps it (cheap test first: below :meth:`_long_lower_bound` no step
+        is designed)."""
         if abs(K) < self._long_lower_bound():
             return False
         r2r = self.spec.rest_to_rest_up_to_track
@@ -177,13 +183,13 @@ class LongSeekDesigner(StepDesigns):
             return False
         if not self.spec.compare_below_long:
             return abs(K) >= self.long_from_track()
-        return abs(K) > self.compare_from_track()
+        return abs(K) >= self.accel_step().accel_track * COMPOSE_FROM_SAMPLES ** 2
 
     def _long_lower_bound(self) -> float:
-        """``c I0_FRACTION lim n^2`` [track] (``n``: ``COMPARE_SAMPLES`` with
+        """``c I0_FRACTION lim n^2`` [track] (``n``: ``COMPOSE_FROM_SAMPLES`` with
         ``LongSeekSpec.compare_below_long``, else :meth:`n_floor`): no shorter seek is built from the step
         (``I0 <= I0_FRACTION lim``)."""
-        n = COMPARE_SAMPLES if self.spec.compare_below_long else self.n_floor()
+        n = COMPOSE_FROM_SAMPLES if self.spec.compare_below_long else self.n_floor()
         return self.plant.k0 / self.fs ** 2 * I0_FRACTION * self._lim() * n ** 2
 
     def compare_from_track(self) -> float:
@@ -217,7 +223,7 @@ class LongSeekDesigner(StepDesigns):
         st = self.accel_step()
         if abs(K) >= self.long_from_track():
             return plan_seek(st, K, self.n_floor(), self._n_vmax(), self.settle, current_limit_a=lim)
-        plan = plan_seek(st, K, COMPARE_SAMPLES, self._n_vmax(), self.settle, current_limit_a=lim)
+        plan = plan_seek(st, K, COMPOSE_FROM_SAMPLES, self._n_vmax(), self.settle, current_limit_a=lim)
         if plan is None:
             return None
         from seekopt.design.profiles import t_bang_bang
