@@ -69,11 +69,11 @@ small QPs on the problem's set, kept) gives every such seek as four shifted copi
    ``T_bb + O``, ``O`` the settle overhead of the rest-to-rest design of ``compare_from_track`` tracks
    (one cheap design per designer, kept): the rest-to-rest overhead grows with the length or stays flat
    (robust sweep set, samples: 200k TPI 27.6 at 10 samples at ``I0``, 29.2 at 20, 27.6 at 25.5; 500k 36.6,
-   38.2, 40.2; 1000k 41.6, 49.8, 52.1, 50.3), so ``T_bb + O`` is a low estimate of the rest-to-rest settle.
+   38.2, 40.2; 1000k 41.6, 49.8, 52.1, 50.3), so ``T_bb + O`` is mostly a low estimate of the
+   rest-to-rest settle (one exception measured in the 9 x 20 grid: 300k TPI, 2069 tracks, 1.155x).
    Why: the rest-to-rest QPs near ``n_floor`` have 80-110 samples, and robust ones at high track density
    took 5-282 s CPU each (``docs/results_sweep_scaling.md``), while the composition settles within
-   1.00-1.07x of them there (``docs/results_longseek.md``); on a single plant the rest-to-rest overhead is
-   small and this rule keeps the QP;
+   1.00-1.08x of them there (``docs/results_longseek.md``);
 3. else the rest-to-rest QP (:class:`~seekopt.design.designer.SeekDesigner`), its peak velocity checked
    against ``vmax``.
 
