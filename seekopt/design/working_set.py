@@ -129,7 +129,7 @@ class WorkingSetQP:
         the variables)."""
         qp = self.qp
         g, lba, uba, lbx, ubx = qp.bounds(K, nseek, beta, gamma, hf_tol, slew_a_per_s, nominal_from)
-        H, A = self.qp.matrices(K)
+        H, A = qp.hessian(K), qp.row_operator(K)       # A: rows as an operator (seekopt.design.qp_rows)
         fv = np.flatnonzero(lbx < ubx)                          # free variables
         xfix = np.where(lbx == ubx, lbx, 0.0)
         cand = np.flatnonzero(np.isfinite(lba) | np.isfinite(uba))
@@ -149,11 +149,11 @@ class WorkingSetQP:
         x = None
         if x0 is not None and np.all(np.isfinite(x0)):
             x = np.clip(x0, lbx, ubx)
-            r = (A @ x)[cand]           # not A[cand] @ x: that copies the whole matrix (11000 x 192 robust)
+            r = A.matvec(x)[cand]       # not A[cand] @ x: that copies the whole matrix
             self._add(work, np.maximum(r - uc, lc - r) + self.screen_margin, len(fv))
         wall = cpu = 0.0
         attempts = []
-        A_fixed = A[:, lbx == ubx] @ xfix[lbx == ubx] if np.any(xfix) else None
+        A_fixed = A.matvec(xfix) if np.any(xfix) else None     # xfix is zero on the free variables
         why = "rounds"
         for _ in range(self.max_rounds):
             if screen and work.sum() > self.max_fraction * len(cand):
@@ -163,7 +163,7 @@ class WorkingSetQP:
             chain = self._chain(len(fv), len(rows), None if screen else 64)
             mb = chain.m if self.pad else len(rows)
             Ar = np.zeros((mb, len(fv)))
-            Ar[:len(rows)] = A[np.ix_(cand[rows], fv)]
+            Ar[:len(rows)] = A.take(cand[rows], fv)
             shift = 0.0 if A_fixed is None else A_fixed[cand[rows]]
             lr = np.full(mb, -np.inf); lr[:len(rows)] = lc[rows] - shift
             ur = np.full(mb, np.inf); ur[:len(rows)] = uc[rows] - shift
@@ -227,7 +227,7 @@ class WorkingSetQP:
             x[fv] = sol.x
             full = self._full(sol, fv, xfix, rows, cand)
             self._lam = (full.lam_a, full.lam_x)           # the next round's or length's starting active set
-            r = (A @ x)[cand]
+            r = A.matvec(x)[cand]
             viol = np.maximum(r - uc, lc - r)
             if not np.any((viol > self.add_tol) & ~work):
                 self._hint = cand[rows[np.abs(np.nan_to_num(sol.lam_a[:len(rows)])) > 1e-12]]   # the active set
