@@ -47,34 +47,52 @@ class SeekRows:
         self.D0 = np.zeros((0, self.n)) if D0 is None else D0
         self.D1 = np.zeros((0, self.n)) if D1 is None else D1
         self.m = self.m_b + self.p.size
-        self._aK = None
-        self._B = self._Dk = self._absB = self._absD = None
+        # the columns each part lives on (A0: feedforward and epigraph, A1: reference): products read
+        # only those, and A(K) is never formed (a robust structure's explicit rows are 20 MB per part)
+        self._c0 = np.flatnonzero(np.any(A0 != 0, axis=0))
+        self._c1 = np.flatnonzero(np.any(A1 != 0, axis=0))
+        self._P0, self._P1 = A0[:, self._c0], A1[:, self._c1]
+        self._aK = 0.0
+        self._Dk = self.D0
+        self._abs = None
 
     def at(self, aK: float) -> "SeekRows":
-        """Fix ``|K|`` (the explicit and shared rows at it are formed once per seek length and kept)."""
+        """Fix ``|K|`` (kept until the next call with another ``|K|``)."""
         aK = float(aK)
         if self._aK != aK:
-            self._B = self.A0 + aK * self.A1
+            self._aK = aK
             self._Dk = self.D0 + aK * self.D1
-            self._aK, self._absB, self._absD = aK, None, None
         return self
+
+    def _base(self, x: np.ndarray) -> np.ndarray:
+        return self._P0 @ x[self._c0] + self._aK * (self._P1 @ x[self._c1])
 
     def matvec(self, x: np.ndarray) -> np.ndarray:
         """``A x`` over all ``m`` rows."""
-        b = self._B @ x
+        b = self._base(x)
         if not self.p.size:
             return b
         return np.concatenate([b, b[self.p] + self.s * (self._Dk @ x)[self.d]])
 
     def abs_matvec(self, ax: np.ndarray) -> np.ndarray:
-        """``|A| ax`` for ``ax >= 0`` with a derived row's ``|A[p] + s D[d]|`` taken as ``|A[p]| + |D[d]|``
-        (the size of the terms its product sums: the cancellation level of a re-check)."""
-        if self._absB is None:
-            self._absB, self._absD = np.abs(self._B), np.abs(self._Dk)
-        b = self._absB @ ax
+        """``|A| ax`` for ``ax >= 0``, each row's ``|A0 + |K| A1|`` taken as ``|A0| + |K| |A1|`` (exact where
+        the parts have no column in common, as in the seek QP) and a derived row's ``|A[p] + s D[d]|`` as
+        ``|A[p]| + |D[d]|``: the size of the terms its product sums (the cancellation level of a re-check)."""
+        if self._abs is None:
+            self._abs = (np.abs(self._P0), np.abs(self._P1), np.abs(self.D0), np.abs(self.D1))
+        a0, a1, d0, d1 = self._abs
+        b = a0 @ ax[self._c0] + self._aK * (a1 @ ax[self._c1])
         if not self.p.size:
             return b
-        return np.concatenate([b, b[self.p] + (self._absD @ ax)[self.d]])
+        return np.concatenate([b, b[self.p] + (d0 @ ax + self._aK * (d1 @ ax))[self.d]])
+
+    def _rows(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """Explicit rows ``rows`` (< ``m_b``) of ``A0 + |K| A1`` on columns ``cols`` (from the parts' own
+        columns: whole rows of contiguous arrays, then the columns)."""
+        out = np.zeros((rows.size, self.n))
+        out[:, self._c0] = self._P0[rows]
+        out[:, self._c1] += self._aK * self._P1[rows]
+        return out[:, cols]
 
     def take(self, rows: np.ndarray, cols: np.ndarray | None = None) -> np.ndarray:
         """The rows ``rows`` (and columns ``cols``) as an explicit array."""
@@ -82,10 +100,10 @@ class SeekRows:
         cols = np.arange(self.n) if cols is None else np.asarray(cols, dtype=int)
         out = np.empty((rows.size, cols.size))
         exp = rows < self.m_b
-        out[exp] = self._B[np.ix_(rows[exp], cols)]
+        out[exp] = self._rows(rows[exp], cols)
         if not np.all(exp):
             j = rows[~exp] - self.m_b
-            out[~exp] = self._B[np.ix_(self.p[j], cols)] + self.s[j, None] * self._Dk[np.ix_(self.d[j], cols)]
+            out[~exp] = self._rows(self.p[j], cols) + self.s[j, None] * self._Dk[np.ix_(self.d[j], cols)]
         return out
 
     def dense(self) -> np.ndarray:
