@@ -43,7 +43,8 @@ def test_phase1_daqp_proves_infeasible_rows_and_nothing_else(seed):
     and always the added row (without it the rows have a solution)."""
     for infeasible in (False, True):
         A, lba, uba, lbx, ubx = _system(seed, infeasible)
-        lam = phase1_daqp(A, lba, uba, lbx, ubx)
+        lam, named = phase1_daqp(A, lba, uba, lbx, ubx)
+        assert named is not None
         assert (lam is not None) == infeasible
         if lam is not None:
             assert proves_infeasible(A, lba, uba, lbx, ubx, lam)

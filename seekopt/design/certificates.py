@@ -181,7 +181,10 @@ def phase1_daqp(A: np.ndarray, lba, uba, lbx, ubx, eps: tuple = PHASE1_EPS, iter
     the variable bounds, a Farkas certificate of the :func:`phase1_lp` kind without scipy's LP; returned
     once :func:`proves_infeasible` verifies them on the data, for the first weight of ``eps`` that gives
     a verified certificate (each solve warm-started from the previous one's active set).  On the
-    design's reduced QPs (60-150 variables, 290-940 rows) 4-120 ms, about one solve of the QP itself."""
+    design's reduced QPs (60-150 variables, 290-940 rows) 4-120 ms, about one solve of the QP itself.
+
+    Returns ``(lam, mu)``: the verified multipliers or ``None``, and the last solve's multipliers
+    unverified (``None`` without a phase-1 answer): the rows they name seed :func:`nnls_certificate`."""
     import daqp
     A = np.asarray(A, dtype=float)
     lba, uba = np.asarray(lba, dtype=float), np.asarray(uba, dtype=float)
@@ -189,14 +192,14 @@ def phase1_daqp(A: np.ndarray, lba, uba, lbx, ubx, eps: tuple = PHASE1_EPS, iter
     m, n = A.shape
     iu, il = np.flatnonzero(np.isfinite(uba)), np.flatnonzero(np.isfinite(lba))
     if not (iu.size + il.size):
-        return None
+        return None, None
     G = np.zeros((iu.size + il.size, n + 1))
     G[:iu.size, :n], G[:iu.size, n] = A[iu], -1.0
     G[iu.size:, :n], G[iu.size:, n] = A[il], 1.0
     bu = np.r_[ubx, np.inf, uba[iu], np.full(il.size, np.inf)]
     bl = np.r_[lbx, 0.0, np.full(iu.size, -np.inf), lba[il]]
     sense = np.where(bl == bu, 5, 0).astype(np.intc)
-    dual = None
+    dual, mu = None, None
     for e in np.atleast_1d(eps):
         H = np.diag(np.r_[np.full(n, float(e)), 1.0])
         kw = {} if dual is None else {"dual_start": dual}
@@ -204,14 +207,14 @@ def phase1_daqp(A: np.ndarray, lba, uba, lbx, ubx, eps: tuple = PHASE1_EPS, iter
             x, _, flag, info = daqp.solve(H, np.zeros(n + 1), G, bu, bl, sense, primal_tol=1e-9,
                                           iter_limit=iter_limit, **kw)
         except (ValueError, RuntimeError):
-            return None
+            return None, mu
         if int(flag) not in (1, 2) or not float(np.asarray(x)[n]) > 0:
-            return None
+            return None, mu
         dual = np.asarray(info["lam"], dtype=float)
         lam = dual[n + 1:]
         mu = np.zeros(m)
         np.add.at(mu, iu, lam[:iu.size])
         np.add.at(mu, il, lam[iu.size:])
         if proves_infeasible(A, lba, uba, lbx, ubx, mu):
-            return mu
-    return None
+            return mu, mu
+    return None, mu

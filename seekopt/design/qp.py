@@ -101,7 +101,9 @@ class SeekQP:
       ``|i| / Imax <= gamma``;
     * unmodelled-mode guard (nominal plant): residual of modes in ``[f_lo, f_hi]`` <= ``hf_tol band``;
     * blind-band mode's PES (``bpes``, :mod:`seekopt.design.blind_pes`) added to each band plant's, both
-      signs, samples ``k >= N`` (minimum seek-settle designs only): ``|e_i(k) +- dPES_f(k) / band| <= bpes_tol``;
+      signs, samples ``k >= N`` (minimum seek-settle designs only): ``|e_i(k) +- dPES_f(k) / band| <= bpes_tol``
+      (derived rows after all others, never stored: :class:`~seekopt.design.qp_rows.SeekRows`, :attr:`rows`;
+      ``A0``, ``A1`` hold the explicit rows);
     * rigid rest-to-rest: ``M u_ff = [K, 0]`` (:func:`seekopt.design.profiles.rigid_endpoint_matrix`);
     * optional slew ``|u_ff(k) - u_ff(k-1)| <= slew / fs``.
 

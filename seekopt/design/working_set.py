@@ -204,7 +204,12 @@ class WorkingSetQP:
                     # a Farkas certificate): about one daqp solve, where the next solver's re-solve and
                     # the least squares on the rows it named took 1.5-3 (and scipy's import, cold)
                     k = len(rows)
-                    lam = phase1_daqp(Ar[:k], lr[:k], ur[:k], lbr, ubr)
+                    lam, named = phase1_daqp(Ar[:k], lr[:k], ur[:k], lbr, ubr)
+                    if lam is None and named is not None and np.any(named):
+                        # not verified: the rows its multipliers name seed the least squares (with cutting
+                        # planes), as the next solver's would
+                        lam = nnls_certificate(Ar[:k], lr[:k], ur[:k], lbr, ubr, np.flatnonzero(named),
+                                               cap=max(Ar.shape[1] // 2, 10))
                     if lam is not None:
                         self.phase1_proofs += 1
                         sol.lam_a = np.zeros(len(Ar))
