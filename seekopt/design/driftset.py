@@ -137,6 +137,9 @@ def drift_set(nominal: ModalPlant, family, drift) -> list:
     ("oa 1", ...) over the per-mode ranges (each mode's frequency, damping and gain at +- its
     range: columns of a Sylvester-Hadamard array, strength 2).  Plants that coincide as drives
     (:func:`~seekopt.design.predict.set_identity`: the plant and its feedforward calibration) are kept once.
+    The per-mode corners and the array rows stand for the identification's own error and carry
+    ``meta["set_role"]`` :data:`~seekopt.design.blind_pes.ID_ERROR_ROLE` (no blind-band mode's PES rows on
+    them: :func:`seekopt.design.blind_pes.blind_pes_plants`); the others are operating conditions.
     """
     rng_ = drift.ranges(nominal, family)
     nom = _vary(nominal, "nominal")
