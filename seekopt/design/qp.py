@@ -100,10 +100,10 @@ class SeekQP:
     * total current, each sub-step of ``k < nmax + 40`` (other plants of the set: ``nmax + 8``):
       ``|i| / Imax <= gamma``;
     * unmodelled-mode guard (nominal plant): residual of modes in ``[f_lo, f_hi]`` <= ``hf_tol band``;
-    * blind-band mode's PES (``bpes``, :mod:`seekopt.design.blind_pes`) added to each band plant's, both
-      signs, samples ``k >= N`` (minimum seek-settle designs only): ``|e_i(k) +- dPES_f(k) / band| <= bpes_tol``
-      (derived rows after all others, never stored: :class:`~seekopt.design.qp_rows.SeekRows`, :attr:`rows`;
-      ``A0``, ``A1`` hold the explicit rows);
+    * blind-band mode's PES (``bpes``, :mod:`seekopt.design.blind_pes`) added to each band plant's of
+      ``bpes_plants`` (None: all), both signs, samples ``k >= N`` (minimum seek-settle designs only):
+      ``|e_i(k) +- dPES_f(k) / band| <= bpes_tol`` (derived rows after all others, never stored:
+      :class:`~seekopt.design.qp_rows.SeekRows`, :attr:`rows`; ``A0``, ``A1`` hold the explicit rows);
     * rigid rest-to-rest: ``M u_ff = [K, 0]`` (:func:`seekopt.design.profiles.rigid_endpoint_matrix`);
     * optional slew ``|u_ff(k) - u_ff(k-1)| <= slew / fs``.
 
@@ -116,7 +116,7 @@ class SeekQP:
                  band_plants: list, solver, *, epigraph: bool = False, R=None, hf=None, slew=None,
                  rho: float = 1e-2, rho_q: float = 1e-3, w_e: float = 1.0, w_t: float = 10.0,
                  eps: float = 1e-9, current_extra: int = 40, stride: int = 1, input_tail: int = 0,
-                 bpes=None, bpes_tol: float | None = None):
+                 bpes=None, bpes_tol: float | None = None, bpes_plants=None):
         t_build = time.perf_counter()
         Ns, Hn = int(nmax), int(horizon)
         self.input_tail = int(input_tail)
@@ -199,8 +199,10 @@ class SeekQP:
             kinds += [("slew", 0, j) for j in range(N + 1)]
         self.A0, self.A1 = _assemble(blocks, n, N)    # the explicit rows
         # a blind-band mode's PES added to each band plant's (seekopt.design.blind_pes), both signs: derived
-        # rows (a band row +- a shared row, seekopt.design.qp_rows), after the explicit rows
-        bp_plants = [i for i in range(len(maps)) if i in set(band_plants)] if bpes else []
+        # rows (a band row +- a shared row, seekopt.design.qp_rows), after the explicit rows;
+        # ``bpes_plants``: only those (None: every band plant)
+        bp_plants = [i for i in range(len(maps)) if i in set(band_plants)
+                     and (bpes_plants is None or i in set(bpes_plants))] if bpes else []
         if bp_plants and epigraph:
             raise ValueError("blind-band PES rows need the band rows of the non-epigraph QP")
         D0 = D1 = None
