@@ -20,7 +20,9 @@ satisfies the dropped rows is optimal with them).  A reduced QP without a soluti
 QP has none (it has fewer rows) -- but only a *verified* proof counts: the primary's row multipliers
 must pass the Farkas check :func:`seekopt.design.solvers.proves_infeasible` (daqp has reported -1 on
 reduced QPs that qpOASES and HiGHS solve; its multipliers then fail the check).  Without that, a
-length the answer rests on (``confirm=True``) gets a phase-1 LP on the reduced rows
+length the answer rests on (``confirm=True``) gets, on a one-plant structure, daqp's own phase-1 QP on
+the reduced rows (:func:`seekopt.design.certificates.phase1_daqp`; unverified, the rows it names seed
+the least squares), else the next solver's multipliers and least squares, then a phase-1 LP on the reduced rows
 (:func:`seekopt.design.solvers.farkas_certificate`, HiGHS; first the rows daqp's multipliers name,
 then the whole working set) whose duals must pass the same check; only when that fails too does
 the full QP decide (the primary's and fallbacks' trust level without the working set).  A search
