@@ -40,6 +40,15 @@ class StepDesigns:
             self._maps_h = h
         return self._maps
 
+    def _nominal_maps(self, horizon):
+        """The nominal plant's maps over at least ``horizon`` samples: the set's first map when the set's maps
+        are that long (one simulation of the nominal loop), else the nominal's alone (kept)."""
+        if self._maps is not None and self._maps_h >= horizon:
+            return self._maps[0]
+        if self._nominal is None or self._nominal.horizon < horizon:
+            self._nominal = set_loop_maps(self.plants[:1], self.controller, 2 * horizon)[0]
+        return self._nominal
+
     def _guard_rows(self, nmax, maps):
         """The linear designer's unmodelled-mode guard rows (:func:`~seekopt.design.guard.design_guard_rows`:
         Nyquist band, controller notches, the plant's blind bands) for steps of at most ``nmax`` samples
@@ -104,11 +113,8 @@ class StepDesigns:
         ``(1 + gamma) / 2 Imax`` with the hold in both directions, for every ``m`` up to the length where ``e_A`` and the
         currents have died out; ``m < N`` overlaps the steps)."""
         from seekopt.design.metrics import settle_index
-        from seekopt.design.qp import LoopMaps
         H = step.n + 4 * self.tail
-        if self._nominal is None or self._nominal.horizon < H:
-            self._nominal = LoopMaps(self.plant, self.controller, 2 * H)
-        mp = self._nominal
+        mp = self._nominal_maps(H)
         u, r = step.extended(H)
         e = np.convolve(mp.y_u[:H], u)[:H] + np.convolve(mp.y_r[:H], r)[:H] - r
         i = (np.stack([np.convolve(mp.i_u[:H, l], u)[:H] + np.convolve(mp.i_r[:H, l], r)[:H]
@@ -144,13 +150,13 @@ class StepDesigns:
         if self._accel is not None:
             return self._accel
         from seekopt.design.metrics import settle_index
-        from seekopt.design.qp import LoopMaps
         t0 = time.process_time()
         lim = self._lim()
         k0s = [float(q.k0) for q in self.plants]
         i0 = I0_FRACTION * lim / max(1.0, max(self.plant.k0 / k for k in k0s))
         lo, nmax, best, qp, n_solves = 1, 48, None, None, 0
         hf_tol = None
+        self._loop_maps(nmax + 4 * self.tail)     # once: the QPs and the set's error tracks below (N <= 48)
         while nmax <= 512:
             H = nmax + self.tail
             maps = self._loop_maps(H)
@@ -179,9 +185,7 @@ class StepDesigns:
         st = AccelStep(u, i0, off, delta, qp.c, qp.delay, self.fs,
                        meta={"design_samples": hi, "qp_solves": n_solves})
         Hc = hi + 4 * self.tail        # the nominal linear loop: error and currents until they die out
-        if self._nominal is None or self._nominal.horizon < Hc:
-            self._nominal = LoopMaps(self.plant, self.controller, 2 * Hc)
-        mp = self._nominal
+        mp = self._nominal_maps(Hc)
         uu, rr = st.extended(Hc)
         e = np.convolve(mp.y_u[:Hc], uu)[:Hc] + np.convolve(mp.y_r[:Hc], rr)[:Hc] - rr
         if np.max(np.abs(e[-self.tail:])) > 0.01 * self.settle:
