@@ -140,7 +140,7 @@ class AccelStepQP:
     def __init__(self, maps, k0s, nmax, horizon, k0, fs, delay_samples, imax, i0, band, nlo, settings,
                  rho=1e-2, rho_w=1e-3, quiet=0.1, quiet_after=32, hf=None):
         from seekopt.design.qp import pes_row_samples, toeplitz_rows
-        from seekopt.design.solvers import SolverChain, dm
+        from seekopt.design.solvers import SolverChain
         t0 = time.perf_counter()
         N, H, L = int(nmax), int(horizon), maps[0].L
         self.N, self.H, self.imax, self.i0, self.band = N, H, float(imax), float(i0), float(band)
@@ -186,7 +186,7 @@ class AccelStepQP:
         P[:N, :N] = 2 * rho * D.T @ D
         P[N:2 * N, N:2 * N] = 2 * rho_w * D.T @ D
         self._tail = np.nonzero((self.kind == "pes") & (self.plant == 0))[0]
-        self._P0, self._A_dm, self._dm = P + 2e-9 * np.eye(nv), dm(A), dm
+        self._P0 = P + 2e-9 * np.eye(nv)      # numpy data: the chain's zero-copy path (no DM round trip)
         self.m = A.shape[0]
         self.solver = SolverChain(nv, self.m, settings.chain, settings.options)
         self.violation_tol = float(settings.violation_tol)
@@ -226,7 +226,7 @@ class AccelStepQP:
                 return "non-finite answer"
             viol = constraint_violation(self.A, x, lba, uba, lbx, ubx)
             return f"constraint violation {viol:.2g}" if viol > self.violation_tol else ""
-        return self.solver.solve(self._dm(P), g, self._A_dm, lba, uba, lbx, ubx, x0=x0, check=check)
+        return self.solver.solve(P, g, self.A, lba, uba, lbx, ubx, x0=x0, check=check)
 
     def unpack(self, x, nseek):
         """``(u [A], reference offset [track] over ``nseek`` samples, delta [track])``."""
