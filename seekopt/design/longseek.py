@@ -93,7 +93,7 @@ from seekopt.design import guard as _guard
 from seekopt.design.accel_step import AccelStep, plan_seek
 from seekopt.design.longseek_spec import (I0_FRACTION, LongSeekError, LongSeekSpec, stroke_from_plant,
                                           t_accel_coast_decel, vmax_from_plant)
-from seekopt.design.longseek_steps import ACCEL_QUIET, StepDesigns
+from seekopt.design.longseek_steps import ACCEL_QUIET, ACCEL_SET_LAG, StepDesigns
 from seekopt.design.velocity_step import VelocityStep
 
 #: Bang-bang samples at ``I0`` of the reference rest-to-rest seek of the dispatch (module notes, rule 2):
@@ -156,7 +156,7 @@ class LongSeekDesigner(StepDesigns):
         self._short = short_designer
         self._steps: dict = {}
         self._accel: AccelStep | None = None
-        self.accel_quiet = ACCEL_QUIET
+        self.accel_quiet, self.accel_set_lag = ACCEL_QUIET, ACCEL_SET_LAG
         self._maps, self._maps_h = None, 0
         self._nominal = None
         self._r2r_over = None

@@ -21,14 +21,22 @@ from seekopt.design.velocity_step import StepQP, VelocityStep
 #: The acceleration step's error bound on the nominal plant from 32 samples after the step, as a fraction
 #: of the band margin (:class:`~seekopt.design.accel_step.AccelStepQP` ``quiet``).
 ACCEL_QUIET = 0.1
+#: Samples after the acceleration step's end from which the other plants of the set are held in the band
+#: (:class:`~seekopt.design.accel_step.AccelStepQP` ``set_lag``; the nominal from the end on).  A seek sees
+#: the four-term sum of the step's error, not one step's: on the set's gain corners the older terms' slow
+#: tails already put the seek's set settle 18-20 samples after the nominal (robust bundled drive, 1e4-1e5
+#: tracks at 2e6 track/s), so holding each step's set error in the band from its end on cost 7 samples of
+#: the nominal arrival (step 46 -> 39 samples) and bought no set settle: measured with 10, the seeks'
+#: predicted set settle moved by -3..+3 samples over 311-1e5 tracks (16: up to +28), the nominal 7 sooner.
+ACCEL_SET_LAG = 10
 
-__all__ = ["StepDesigns", "ACCEL_QUIET"]
+__all__ = ["StepDesigns", "ACCEL_QUIET", "ACCEL_SET_LAG"]
 
 
 class StepDesigns:
     """The velocity steps and the acceleration step of a :class:`~seekopt.design.longseek.LongSeekDesigner`
-    (a mixin: the problem's data, the caches ``_steps``, ``_accel``, ``_maps``, ``_nominal`` and
-    ``accel_quiet`` are set by its constructor)."""
+    (a mixin: the problem's data, the caches ``_steps``, ``_accel``, ``_maps``, ``_nominal``,
+    ``accel_quiet`` and ``accel_set_lag`` are set by its constructor)."""
 
     # ------------------------------------------------------------------ velocity steps
     def _loop_maps(self, horizon):
@@ -166,7 +174,8 @@ class StepDesigns:
                 hf_tol = self.hf_tol * 2 * float(np.min(np.abs(np.sin(np.pi * rows[1] / self.fs)))) / 4
             qp = AccelStepQP(maps, k0s, nmax, H, self.plant.k0, self.fs, self.plant.total_delay_s * self.fs,
                              self.imax, i0, self.settle, lo, self.problem.solver,
-                             hf=None if rows is None else rows[0], quiet=self.accel_quiet)
+                             hf=None if rows is None else rows[0], quiet=self.accel_quiet,
+                             set_lag=self.accel_set_lag)
             sol = qp.solve(nmax, self.beta, lim, hf_tol); n_solves += 1
             if sol.success:
                 best = sol
