@@ -66,11 +66,12 @@ small QPs on the problem's set, kept) gives every such seek as four shifted copi
    pay the step and the reference first), from ``c I0 COMPOSE_FROM_SAMPLES^2`` (14 samples at ``I0``)
    to ``long_from_track`` the composition (``n >= 14``) is taken when its predicted settle is within
    ``SETTLE_RATIO = 1.15`` of
-   ``T_bb + O``, ``O`` the settle overhead of the rest-to-rest design of ``compare_from_track`` tracks
-   (one cheap design per designer, kept): the rest-to-rest overhead grows with the length or stays flat
-   (robust sweep set, samples: 200k TPI 27.6 at 10 samples at ``I0``, 29.2 at 20, 27.6 at 25.5; 500k 36.6,
-   38.2, 40.2; 1000k 41.6, 49.8, 52.1, 50.3), so ``T_bb + O`` is mostly a low estimate of the
-   rest-to-rest settle (one exception measured in the 9 x 20 grid: 300k TPI, 2069 tracks, 1.155x).
+   ``T_bb + O - OVERHEAD_SPREAD``, ``O`` the settle overhead of the rest-to-rest design of
+   ``compare_from_track`` tracks (one cheap design per designer, kept): the rest-to-rest overhead mostly
+   grows with the length or stays flat (robust sweep set, samples: 200k TPI 27.6 at 10 samples at ``I0``,
+   29.2 at 20, 27.6 at 25.5; 500k 36.6, 38.2, 40.2; 1000k 41.6, 49.8, 52.1, 50.3) but fell 3 samples at
+   300k TPI (33.6 -> 30.65 at 2069 tracks), so ``T_bb + O - 3`` is a low estimate of the rest-to-rest
+   settle on every cell measured.
    Why: the rest-to-rest QPs near ``n_floor`` have 80-110 samples, and robust ones at high track density
    took 5-282 s CPU each (``docs/results_sweep_scaling.md``), while the composition settles within
    1.00-1.08x of them there (``docs/results_longseek.md``);
@@ -105,9 +106,15 @@ COMPARE_SAMPLES = 10
 COMPOSE_FROM_SAMPLES = 14
 #: Settle allowed to a composition below ``long_from_track`` against the rest-to-rest design (issue 12).
 SETTLE_RATIO = 1.15
+#: Samples by which a robust rest-to-rest design's overhead (settle - T_bb) may fall below the reference
+#: design's (:meth:`LongSeekDesigner.rest_to_rest_overhead`) at a longer seek: the overhead is a settle counted
+#: in whole samples less a fractional T_bb, and the set's arrival (gain corners, delay) does not grow it
+#: monotonically with the length.  Largest drop measured on the robust sweep set: 300k TPI, 33.6 samples at
+#: 10 samples at ``I0`` against 30.65 at 2069 tracks (600k: 37.6 against 37.5; 200k/500k/1000k: none).
+OVERHEAD_SPREAD = 3.0
 
 __all__ = ["LongSeekSpec", "VelocityStep", "AccelStep", "LongSeekDesigner", "LongSeekError", "vmax_from_plant",
-           "stroke_from_plant", "t_accel_coast_decel", "I0_FRACTION"]
+           "stroke_from_plant", "t_accel_coast_decel", "I0_FRACTION", "OVERHEAD_SPREAD"]
 
 
 class LongSeekDesigner(StepDesigns):
@@ -185,11 +192,18 @@ class LongSeekDesigner(StepDesigns):
             return abs(K) >= self.long_from_track()
         return abs(K) >= self.accel_step().accel_track * COMPOSE_FROM_SAMPLES ** 2
 
+    def min_accel_samples(self) -> int:
+        """Fewest samples at ``I0`` of any composition of this designer: ``COMPOSE_FROM_SAMPLES`` with
+        ``LongSeekSpec.compare_below_long``, else :meth:`n_floor`.  The older terms of a composition's error
+        are at least this many samples older than its arrival: the acceleration step's nominal quiet rows
+        start there (:class:`~seekopt.design.accel_step.AccelStepQP` ``quiet_after``)."""
+        return COMPOSE_FROM_SAMPLES if self.spec.compare_below_long else self.n_floor()
+
     def _long_lower_bound(self) -> float:
         """``c I0_FRACTION lim n^2`` [track] (``n``: ``COMPOSE_FROM_SAMPLES`` with
         ``LongSeekSpec.compare_below_long``, else :meth:`n_floor`): no shorter seek is built from the step
         (``I0 <= I0_FRACTION lim``)."""
-        n = COMPOSE_FROM_SAMPLES if self.spec.compare_below_long else self.n_floor()
+        n = self.min_accel_samples()
         return self.plant.k0 / self.fs ** 2 * I0_FRACTION * self._lim() * n ** 2
 
     def compare_from_track(self) -> float:
@@ -218,7 +232,7 @@ class LongSeekDesigner(StepDesigns):
     def _plan(self, K: float):
         """The composition's plan (:func:`~seekopt.design.accel_step.plan_seek`) under the dispatch rule
         (module notes, rule 2), or None: from :meth:`long_from_track` on any plan; below it, a plan whose
-        predicted settle is within ``SETTLE_RATIO (T_bb + rest_to_rest_overhead())``."""
+        predicted settle is within ``SETTLE_RATIO (T_bb + rest_to_rest_overhead() - OVERHEAD_SPREAD)``."""
         lim = 0.5 * (1 + self.gamma) * self.imax - abs(self.plant.bias_a)
         st = self.accel_step()
         if abs(K) >= self.long_from_track():
@@ -227,7 +241,7 @@ class LongSeekDesigner(StepDesigns):
         if plan is None:
             return None
         from seekopt.design.profiles import t_bang_bang
-        r2r = t_bang_bang(K, self.plant.k0, self.imax) * self.fs + self.rest_to_rest_overhead()
+        r2r = t_bang_bang(K, self.plant.k0, self.imax) * self.fs + self.rest_to_rest_overhead() - OVERHEAD_SPREAD
         return plan if plan[2] <= SETTLE_RATIO * r2r else None
 
     def _n_vmax(self) -> float:

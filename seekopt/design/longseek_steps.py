@@ -18,8 +18,9 @@ from seekopt.design.longseek_spec import I0_FRACTION, LongSeekError
 from seekopt.design.search import bisect_length
 from seekopt.design.velocity_step import StepQP, VelocityStep
 
-#: The acceleration step's error bound on the nominal plant from 32 samples after the step, as a fraction
-#: of the band margin (:class:`~seekopt.design.accel_step.AccelStepQP` ``quiet``).
+#: The acceleration step's error bound on the nominal plant from ``min_accel_samples()`` samples after the step
+#: (32, or 14 with ``compare_below_long``: where a composition's older terms begin), as a fraction of the band
+#: margin (:class:`~seekopt.design.accel_step.AccelStepQP` ``quiet``).
 ACCEL_QUIET = 0.1
 #: Samples after the acceleration step's end from which the other plants of the set are held in the band
 #: (:class:`~seekopt.design.accel_step.AccelStepQP` ``set_lag``; the nominal from the end on).  A seek sees
@@ -175,7 +176,7 @@ class StepDesigns:
             qp = AccelStepQP(maps, k0s, nmax, H, self.plant.k0, self.fs, self.plant.total_delay_s * self.fs,
                              self.imax, i0, self.settle, lo, self.problem.solver,
                              hf=None if rows is None else rows[0], quiet=self.accel_quiet,
-                             set_lag=self.accel_set_lag)
+                             quiet_after=self.min_accel_samples(), set_lag=self.accel_set_lag)
             sol = qp.solve(nmax, self.beta, lim, hf_tol); n_solves += 1
             if sol.success:
                 best = sol
