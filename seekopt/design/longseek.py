@@ -88,12 +88,11 @@ from __future__ import annotations
 import math
 import time
 
-import numpy as np
-
 from seekopt.design import guard as _guard
 from seekopt.design.accel_step import AccelStep, plan_seek
 from seekopt.design.longseek_spec import (I0_FRACTION, LongSeekError, LongSeekSpec, stroke_from_plant,
                                           t_accel_coast_decel, vmax_from_plant)
+from seekopt.design.longseek_build import SeekBuild, rigid_peak_velocity
 from seekopt.design.longseek_steps import ACCEL_QUIET, ACCEL_SET_LAG, StepDesigns
 from seekopt.design.velocity_step import VelocityStep
 
@@ -114,10 +113,10 @@ SETTLE_RATIO = 1.15
 OVERHEAD_SPREAD = 3.0
 
 __all__ = ["LongSeekSpec", "VelocityStep", "AccelStep", "LongSeekDesigner", "LongSeekError", "vmax_from_plant",
-           "stroke_from_plant", "t_accel_coast_decel", "I0_FRACTION", "OVERHEAD_SPREAD"]
+           "stroke_from_plant", "t_accel_coast_decel", "I0_FRACTION", "OVERHEAD_SPREAD", "rigid_peak_velocity"]
 
 
-class LongSeekDesigner(StepDesigns):
+class LongSeekDesigner(StepDesigns, SeekBuild):
     """Long seeks for one :class:`seekopt.design.problem.SeekProblem` (module notes); build once, design many.
 
     ``LongSeekDesigner(problem, spec)``, or the keyword form ``LongSeekDesigner(plant, controller, imax,
@@ -352,68 +351,3 @@ class LongSeekDesigner(StepDesigns):
         if plan is None:
             raise LongSeekError(f"no acceleration-step plan settles the seek of {K:g} tracks on every plant")
         return self._design_accel(K, *plan, t0=t0, fresh=fresh)
-
-    def _design_velocity(self, K: float, step: VelocityStep, t0: float):
-        """The seek of ``K`` tracks from ``step`` and its mirror (module notes), verified by simulation."""
-        from seekopt.design.designer import DesignError, DesignResult
-        from seekopt.design.metrics import evaluate_profile
-        from seekopt.design.profiles import Profile
-        vmax = self.spec.vmax_track_s
-        u, r, m, s = step.compose(K)
-        meta = {"plant_hash": self.plant.hash(), "controller_hash": self.controller.hash(),
-                "design_objective": "long_seek/accelerate-coast-arrive", "coast_samples": m,
-                "coast_velocity_track_s": s * step.velocity_track_s, "vmax_track_s": vmax,
-                "step_samples": step.n, "robust": step.meta["robust"], "design_settle_samples": m + step.settle_samples}
-        prof = Profile(np.r_[u, 0.0], np.r_[r, K], self.fs, K, self.imax, self.settle, "long_seek",
-                       int(np.max(np.nonzero(u)[0]) + 1), meta)
-        metrics = evaluate_profile(self.plant, self.controller, prof, settle=self.settle)
-        if not metrics.peak_current_a <= self.imax * (1 + 1e-9):
-            raise DesignError(f"long seek of {K:g} tracks exceeds Imax in simulation ({metrics.peak_current_a:.4g} A)")
-        if not metrics.settle_time_s * self.fs <= m + step.settle_samples + 1 + 1e-9:
-            raise DesignError(f"long seek of {K:g} tracks does not settle by sample {m + step.settle_samples}")
-        prof.meta["design_status"] = "verified"
-        return DesignResult(prof, metrics, "verified", time.process_time() - t0, self.solver,
-                            "long_seek", settle_samples=m + step.settle_samples,
-                            n_solves=int(step.meta["qp_solves"]))
-
-
-    def _design_accel(self, K: float, n: int, m: int, k_pred: int, k_set: int, t0: float, fresh: bool):
-        """The seek of ``K`` tracks from four acceleration steps (module notes), verified by simulation."""
-        from seekopt.design.designer import DesignError, DesignResult
-        from seekopt.design.metrics import evaluate_profile
-        from seekopt.design.profiles import Profile
-        st = self.accel_step()
-        u, r, s = st.compose(K, n, m)
-        vpk = rigid_peak_velocity(u, self.plant.k0, self.fs)
-        vmax = self.spec.vmax_track_s
-        if vmax is not None and vpk > vmax * (1 + 1e-9):
-            raise DesignError(f"long seek of {K:g} tracks: rigid velocity {vpk:.4g} track/s above vmax")
-        meta = {"plant_hash": self.plant.hash(), "controller_hash": self.controller.hash(),
-                "design_objective": "long_seek/accelerate-coast-arrive (acceleration steps)",
-                "accel_samples": n, "coast_samples": m - n, "coast_velocity_track_s": vpk, "vmax_track_s": vmax,
-                "step_samples": st.n, "robust": self.robust.to_string() if self.robust else "none",
-                "design_settle_samples": k_pred, "set_settle_samples_predicted": k_set,
-                "peak_rigid_velocity_track_s": vpk}
-        prof = Profile(np.r_[u, 0.0], np.r_[r, K], self.fs, K, self.imax, self.settle, "long_seek",
-                       int(np.max(np.nonzero(u)[0]) + 1), meta)
-        metrics = evaluate_profile(self.plant, self.controller, prof, settle=self.settle)
-        if not metrics.peak_current_a <= self.imax * (1 + 1e-9):
-            raise DesignError(f"long seek of {K:g} tracks exceeds Imax in simulation ({metrics.peak_current_a:.4g} A)")
-        if not metrics.settle_time_s * self.fs <= k_pred + 1 + 1e-9:
-            raise DesignError(f"long seek of {K:g} tracks does not settle by sample {k_pred} "
-                              f"({metrics.settle_time_s * self.fs:.1f})")
-        prof.meta["design_status"] = "verified"
-        guard = None
-        if self.guard_bands:       # not a constraint of the step (accel_step notes): measured and reported
-            guard = _guard.guard_report(self.plant, self.controller, prof, self.guard_bands, self.settle,
-                                        curve=self.guard_curve)
-            prof.meta.update(guard.to_meta())
-        n_solves = int(st.meta["qp_solves"]) if fresh else 0
-        return DesignResult(prof, metrics, "verified", time.process_time() - t0, self.solver,
-                            "long_seek", settle_samples=k_pred, n_solves=n_solves, set_settle_samples=k_set,
-                            guard=guard)
-
-
-def rigid_peak_velocity(current_a, k0: float, fs: float) -> float:
-    """Largest ``|rigid velocity|`` [track/s] of a feedforward (ZOH double integrator)."""
-    return float(np.max(np.abs(np.cumsum(current_a)))) * k0 / fs
