@@ -40,6 +40,30 @@ class StepDesigns:
     ``accel_quiet`` and ``accel_set_lag`` are set by its constructor)."""
 
     # ------------------------------------------------------------------ velocity steps
+    def _shortest_step(self, build, lo: int, nmax: int, cap: int, what: str):
+        """The fewest samples of a step QP: ``build(nmax, lo) -> (qp, solve)`` makes the QP for steps of at
+        most ``nmax`` samples (``solve(n, warm)`` solves it at ``n``); ``nmax`` grows 1.5x from the given
+        one until feasible (at most ``cap``), then :func:`~seekopt.design.search.bisect_length` (the step
+        QP decides on the whole problem: feasibility is monotone in ``n``, no confirmation).  Returns
+        ``(n, solution, qp, QP solves)``."""
+        best, n_solves = None, 0
+        while nmax <= cap:
+            qp, solve = build(nmax, lo)
+            sol = solve(nmax); n_solves += 1
+            if sol.success:
+                best = sol
+                break
+            lo, nmax = nmax, int(math.ceil(1.5 * nmax))
+        if best is None:
+            raise LongSeekError(f"no {what} within {cap} samples")
+        solves = []
+
+        def probe(n, warm=None, confirm=True):
+            solves.append(n)
+            return solve(n, warm)
+        hi, best = bisect_length(probe, lo, nmax, best, lambda n: False)
+        return hi, best, qp, n_solves + len(solves)
+
     def _loop_maps(self, horizon):
         """The set's closed-loop maps as the linear designer's (:func:`~seekopt.design.predict.set_loop_maps`:
         each plant with its drive's feedforward calibration), at least ``horizon`` samples long (kept)."""
@@ -85,24 +109,14 @@ class StepDesigns:
         n_rigid = int(math.ceil(d / (c * gam * self.imax) - 1e-9))
         lo = max(n_rigid - 1, 1)
         hf_tol = 0.5 * self.hf_tol if self.guard_bands else None
-        nmax, best, qp, n_solves = max(16, int(math.ceil(1.3 * n_rigid + 12))), None, None, 0
+        nmax = max(16, int(math.ceil(1.3 * n_rigid + 12)))
         self._loop_maps(int(1.5 * nmax) + self.tail)     # once for the first two size classes
-        while nmax <= 4096:
-            qp = self._qp(nmax, lo)
-            sol = qp.solve(d, nmax, self.beta, self.gamma, hf_tol); n_solves += 1
-            if sol.success:
-                best, hi = sol, nmax
-                break
-            lo, nmax = nmax, int(math.ceil(1.5 * nmax))
-        if best is None:
-            raise LongSeekError(f"no velocity step to {velocity_track_s:g} track/s within 4096 samples")
-        solves = []
 
-        def probe(n, warm=None, confirm=True):    # the step QP decides on the whole problem: no confirmation
-            solves.append(n)
-            return qp.solve(d, n, self.beta, self.gamma, hf_tol, x0=warm)
-        hi, best = bisect_length(probe, lo, hi, best, lambda n: False)     # feasibility is monotone in N
-        n_solves += len(solves)
+        def build(nmax, lo):
+            qp = self._qp(nmax, lo)
+            return qp, lambda n, warm=None: qp.solve(d, n, self.beta, self.gamma, hf_tol, x0=warm)
+        hi, best, qp, n_solves = self._shortest_step(build, lo, nmax, 4096,
+                                                     f"velocity step to {velocity_track_s:g} track/s")
         u, w = qp.unpack(best.x, hi)
         u = np.clip(u, -self.imax, self.imax)
         u += (d / c - u.sum()) / hi                  # exact velocity (least-norm correction, ~1e-12 A)
@@ -163,34 +177,23 @@ class StepDesigns:
         lim = self._lim()
         k0s = [float(q.k0) for q in self.plants]
         i0 = I0_FRACTION * lim / max(1.0, max(self.plant.k0 / k for k in k0s))
-        lo, nmax, best, qp, n_solves = 1, 48, None, None, 0
-        hf_tol = None
+        nmax = 48
         self._loop_maps(nmax + 4 * self.tail)     # once: the QPs and the set's error tracks below (N <= 48)
-        while nmax <= 512:
+
+        def build(nmax, lo):
             H = nmax + self.tail
             maps = self._loop_maps(H)
             rows = _guard.design_guard_rows(self.guard_bands, self.plant.k0, self.fs, nmax, H, maps[0],
                                             curve=self.guard_curve)
+            hf_tol = None
             if rows is not None:        # accel_step notes: four transitions, one-sample differences
                 hf_tol = self.hf_tol * 2 * float(np.min(np.abs(np.sin(np.pi * rows[1] / self.fs)))) / 4
             qp = AccelStepQP(maps, k0s, nmax, H, self.plant.k0, self.fs, self.plant.total_delay_s * self.fs,
                              self.imax, i0, self.settle, lo, self.problem.solver,
                              hf=None if rows is None else rows[0], quiet=self.accel_quiet,
                              quiet_after=self.min_accel_samples(), set_lag=self.accel_set_lag)
-            sol = qp.solve(nmax, self.beta, lim, hf_tol); n_solves += 1
-            if sol.success:
-                best = sol
-                break
-            lo, nmax = nmax, int(math.ceil(1.5 * nmax))
-        if best is None:
-            raise LongSeekError("no acceleration step within 512 samples")
-        solves = []
-
-        def probe(n, warm=None, confirm=True):     # the step QP decides on the whole problem
-            solves.append(n)
-            return qp.solve(n, self.beta, lim, hf_tol, x0=warm)
-        hi, best = bisect_length(probe, lo, nmax, best, lambda n: False)
-        n_solves += len(solves)
+            return qp, lambda n, warm=None: qp.solve(n, self.beta, lim, hf_tol, x0=warm)
+        hi, best, qp, n_solves = self._shortest_step(build, 1, nmax, 512, "acceleration step")
         u, off, delta = qp.unpack(best.x, hi)
         st = AccelStep(u, i0, off, delta, qp.c, qp.delay, self.fs,
                        meta={"design_samples": hi, "qp_solves": n_solves})
