@@ -78,7 +78,7 @@ small QPs on the problem's set, kept) gives every such seek as four shifted copi
 3. else the rest-to-rest QP (:class:`~seekopt.design.designer.SeekDesigner`), its peak velocity checked
    against ``vmax``.
 
-On the bundled drive ``long_from_track`` is 1627 tracks (``N_J`` = 30 nominal, 46 robust); when no plan
+On the bundled drive ``long_from_track`` is 1627 tracks (``N_J`` = 30 nominal, 39 robust); when no plan
 near the bang-bang ``n`` settles on every plant (none measured), the rest-to-rest QP designs the seek.
 
 The velocity limit and the stroke from the plant's metadata: :mod:`seekopt.design.longseek_spec`.
