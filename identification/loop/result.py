@@ -71,10 +71,7 @@ class Step:
     def to_dict(self) -> dict:
         return {"effect": self.effect, "params": jsonable(self.params), "evidence": self.evidence,
                 "rms_before": float(self.rms_before), "rms_after": float(self.rms_after),
-                "accepted": bool(self.accepted),
-                **{k: (float(v) if v == v else None) for k, v in (
-                    ("rate_before", self.rate_before), ("rate_after", self.rate_after),
-                    ("bic_drop", self.bic_drop), ("rate_bic_drop", self.rate_bic_drop))}}
+                "accepted": bool(self.accepted)}
 
 
 @dataclass
