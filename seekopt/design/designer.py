@@ -174,7 +174,8 @@ class SeekDesigner(SettleSearch):
                 maps, nmax, H, self.imax, self.settle, self.fs, band_plants,
                 lambda n, m: SolverChain(n, m, s.chain, s.options, builds=self._count_solver),
                 epigraph=epigraph, R=R, hf=hf, slew=self.slew, stride=self._stride(nmax),
-                input_tail=in_tail, bpes=bpes, bpes_tol=bpes_tol if bpes else None)
+                input_tail=in_tail, bpes=bpes, bpes_tol=bpes_tol if bpes else None,
+                bpes_plants=_blind.blind_pes_plants(self.plants))
             self.builds += 1
         return self._qps[key]
 

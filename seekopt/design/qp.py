@@ -99,8 +99,9 @@ class SeekQP:
     * total current, each sub-step of ``k < nmax + 40`` (other plants of the set: ``nmax + 8``):
       ``|i| / Imax <= gamma``;
     * unmodelled-mode guard (nominal plant): residual of modes in ``[f_lo, f_hi]`` <= ``hf_tol band``;
-    * blind-band mode's PES (``bpes``, :mod:`seekopt.design.blind_pes`) added to each band plant's, both
-      signs, samples ``k >= N`` (minimum seek-settle designs only): ``|e_i(k) +- dPES_f(k) / band| <= bpes_tol``;
+    * blind-band mode's PES (``bpes``, :mod:`seekopt.design.blind_pes`) added to each band plant's of
+      ``bpes_plants`` (None: all), both signs, samples ``k >= N`` (minimum seek-settle designs only):
+      ``|e_i(k) +- dPES_f(k) / band| <= bpes_tol``;
     * rigid rest-to-rest: ``M u_ff = [K, 0]`` (:func:`seekopt.design.profiles.rigid_endpoint_matrix`);
     * optional slew ``|u_ff(k) - u_ff(k-1)| <= slew / fs``.
 
@@ -113,7 +114,7 @@ class SeekQP:
                  band_plants: list, solver, *, epigraph: bool = False, R=None, hf=None, slew=None,
                  rho: float = 1e-2, rho_q: float = 1e-3, w_e: float = 1.0, w_t: float = 10.0,
                  eps: float = 1e-9, current_extra: int = 40, stride: int = 1, input_tail: int = 0,
-                 bpes=None, bpes_tol: float | None = None):
+                 bpes=None, bpes_tol: float | None = None, bpes_plants=None):
         t_build = time.perf_counter()
         Ns, Hn = int(nmax), int(horizon)
         self.input_tail = int(input_tail)
@@ -182,8 +183,10 @@ class SeekQP:
             if self.free_ref:
                 return imax * Tu / band, Tr / band, z, (s_r[ks_other] - target) / band
             return imax * (Tu[:, :N] + Tr @ Rfull) / band, None, z, z - target / band
-        # a blind-band mode's PES added to each band plant's (seekopt.design.blind_pes), both signs
-        bp_plants = [i for i in range(len(maps)) if i in set(band_plants)] if bpes else []
+        # a blind-band mode's PES added to each band plant's (seekopt.design.blind_pes), both signs;
+        # ``bpes_plants``: only those (None: every band plant)
+        bp_plants = [i for i in range(len(maps)) if i in set(band_plants)
+                     and (bpes_plants is None or i in set(bpes_plants))] if bpes else []
         for i in bp_plants:
             m = maps[i]
             pv, pq, p0, p1 = pos_block(m.y_u, m.y_r, m.s_yr, 1.0)
