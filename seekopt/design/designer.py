@@ -200,7 +200,7 @@ class SeekDesigner(SettleSearch):
             s = self.settings
             self._ws[qp] = WorkingSetQP(qp, lambda n, m: SolverChain(n, m, s.chain, s.options,
                                                                      builds=self._count_solver),
-                                        pad=s.qp_solver != DAQP_PKG, phase1_first=len(self.plants) == 1)
+                                        pad=s.qp_solver != DAQP_PKG, phase1_first=len(self.plants) <= 3)
         return self._ws[qp]
 
     def _solve(self, qp: _qp.SeekQP, K, n, beta, stats: SolveStats, warm=None, epigraph=False, confirm=True,
