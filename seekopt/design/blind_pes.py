@@ -17,7 +17,10 @@ Rule (units: tracks, A, samples; ``e_i(k) = (y_i(k) - K) / band`` the PES of ban
 
 ``P`` the design plant's linear part, ``m_f`` a mode at ``f`` of the band's gain ``g`` (``hf_gain``) and
 damping :data:`BLIND_PES_ZETA`; ``y`` the closed-loop head position under the drive's controller (the one
-simulator, :func:`seekopt.drive.simulator.closed_loop_responses`), so ``d_f`` is the loop's
+simulator, :func:`seekopt.drive.simulator.closed_loop_responses`, for the loop without the mode; the loop
+with it follows exactly by superposition, :func:`add_output_path`, from the mode's own response in the
+engine's discretisation, :func:`mode_response`; equal to simulating the loops with the mode to 5e-13
+relative; 5 frequencies, 200-500 samples: 17-41 ms CPU against 78-155 ms), so ``d_f`` is the loop's
 sensitivity-filtered forced *and* free response to the mode, linear in the profile (``u_ff``, ``r``).  The
 half difference of the ``+g`` and ``-g`` loops is the part linear in ``g``; with ``+-d_f`` the rows hold for
 either sign of the mode and any smaller gain (linear in ``g``).  The mode's PES is taken from the design
