@@ -81,3 +81,20 @@ def test_cli_bad_slack_is_one_line_exit_2(tmp_path, capsys, bad):
     err = capsys.readouterr().err
     assert rc == 2 and "--worst-case-slack" in err and len(err.strip().splitlines()) == 1, err
     assert not out.exists()
+
+
+def test_sweep_and_export_carry_the_slack():
+    """``seekopt sweep --worst-case-slack``: the sweep's configuration keeps it (its hash changes only when it
+    is used) and its ``ocp`` designers' problems (the export's too) are built with it."""
+    from seekopt.evaluate.sweep_cell import designer_problem
+    from seekopt.evaluate.sweep_config import SweepConfig
+    from seekopt.evaluate.sweep import SweepError
+    ctrl, p = Controller.nss(), plant()
+    tpi = 25.4e6 / p.track_pitch_nm
+    base = SweepConfig(p, ctrl, [tpi], [10.0], 0.3)
+    cfg = SweepConfig(p, ctrl, [tpi], [10.0], 0.3, worst_case_slack_s=4e-5)
+    assert "worst_case_slack_s" not in base.identity() and cfg.hash() != base.hash()
+    assert SweepConfig.from_dict(cfg.to_dict()).worst_case_slack_s == 4e-5
+    assert designer_problem("ocp-robust", p, ctrl, 0.3, 0.1, worst_case_slack_s=4e-5).worst_case_slack_samples() == 1
+    with pytest.raises(SweepError, match="slack"):
+        SweepConfig(p, ctrl, [tpi], [10.0], 0.3, worst_case_slack_s=-1.0)

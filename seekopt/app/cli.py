@@ -196,6 +196,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("-o", "--output", required=True, metavar="DIR",
                    help="results folder (created; rerunning resumes it, two sweeps into it share the cells)")
     s.add_argument("--no-figures", action="store_true", help="write the table only, no sweep figures (faster)")
+    s.add_argument("--worst-case-slack", default="0", metavar="TIME",
+                   help=_SLACK_HELP.replace("so that", "(ocp designers; kept in the sweep's configuration, so "
+                                                         "'seekopt export' designs with it too) so that"))
     s.set_defaults(func=cmd_sweep)
 
     s = command("export", "export a sweep's optimal profiles (and tables for every seek length) as fixed-point "
