@@ -26,9 +26,12 @@ def _print_predictions(res, names) -> None:
               f"{res.settle_samples}")
     if pred is not None:
         ms = lambda m: f"{m.settle_time_s * 1e3:.3f} ms ({m.ratio_tbb:.2f} T_bb)"     # noqa: E731
-        for lab, m in pred.members():
+        shown = set()
+        for lab, m in pred.members():      # the member itself comes first, its per-mode corners after it
             i = 0 if lab == "nominal" else int(lab.split()[1].rstrip(":"))
-            print(f"  predicted on {names[i] if i < len(names) else lab}: {ms(m)}")
+            if i not in shown:
+                shown.add(i)
+                print(f"  predicted on {names[i] if i < len(names) else lab}: {ms(m)}")
         print(f"  predicted worst over the {len(pred.labels)}-plant set: {ms(pred.worst_metrics)} on "
               f"'{pred.labels[pred.worst]}'; binding plant: '{pred.labels[pred.binding]}'")
     if g is not None:
