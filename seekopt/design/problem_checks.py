@@ -17,7 +17,7 @@ import numpy as np
 
 from seekopt.drive.loopcheck import closed_loop_poles
 
-__all__ = ["ProblemError", "check_closed_loop", "check_closed_loop", "positive", "fraction", "nonnegative_s", "samples_within"]
+__all__ = ["ProblemError", "check_closed_loop", "positive", "fraction", "nonnegative_s", "samples_within"]
 
 
 class ProblemError(ValueError):
