@@ -357,9 +357,10 @@ class SeekDesigner(SettleSearch):
         raise DesignError(f"no design for {K:g} tracks passed the simulator check up to {c} samples")
 
     # ------------------------------------------------------------------ verification
-    def _finish(self, qp, sol, K, N, stats: SolveStats, objective, strict, settle_n=None) -> DesignResult:
+    def _finish(self, qp, sol, K, N, stats: SolveStats, objective, strict, settle_n=None,
+                set_min=None) -> DesignResult:
         """Verify and package the design (:func:`seekopt.design.verification.verified_design`)."""
-        return verified_design(self, qp, sol, K, N, stats, objective, strict, settle_n)
+        return verified_design(self, qp, sol, K, N, stats, objective, strict, settle_n, set_min)
 
 def design_seek(plant: ModalPlant, controller, tracks: float, imax: float, settle: float = 0.1,
                 robust=None, **options) -> DesignResult:
