@@ -198,6 +198,8 @@ class SeekDesigner(SettleSearch):
     def _working_set(self, qp: _qp.SeekQP) -> WorkingSetQP:
         if qp not in self._ws:
             s = self.settings
+            # daqp's own phase-1 proof first on sets of up to 3 plants (WorkingSetQP's phase1_first: measured
+            # cheaper there, also warm; slower on 22-plant sets)
             self._ws[qp] = WorkingSetQP(qp, lambda n, m: SolverChain(n, m, s.chain, s.options,
                                                                      builds=self._count_solver),
                                         pad=s.qp_solver != DAQP_PKG, phase1_first=len(self.plants) <= 3)
