@@ -156,7 +156,9 @@ class CellRunner:
         """The warm designer of ``(configuration, tpi)`` (built on first use)."""
         held = self._objects(cfgd, tpi)
         if held["designer"] is None:
-            held["designer"] = designer_factory(cfgd["designer"], held["family"], cfgd.get("drift"))(
+            slack = float(cfgd.get("worst_case_slack_s", 0.0))
+            held["designer"] = designer_factory(cfgd["designer"], held["family"], cfgd.get("drift"),
+                                                **({"worst_case_slack_s": slack} if slack else {}))(
                 held["plant"], held["ctrl"], float(cfgd["imax"]), float(cfgd["settle"]))
             self.designers_built += 1
         return held["designer"]
