@@ -173,9 +173,10 @@ class EffectAwareDesigner:
             kt_maps = set_loop_maps([p.linear_part() for p in self.kt_plants], self.controller, maps[0].horizon) \
                 if self.kt_plants else []
             if len(self.linear.plants) > 1 or kt_maps:
-                # the shortest seek of this class settles at prev - tin + 1 (the class holds n + tin): the
-                # set's band rows start there, not after the previous class's input length (that left the
-                # tin samples after such a seek without robust rows: K = 200 on the Kt drive 0.94 -> 5.3 band)
+                # the shortest seek of this class settles at prev - tin + 1 (the class holds n + tin): the set's
+                # band rows start there, not after the previous class's input length (that left up to tin
+                # samples after such a seek without robust rows; the Kt drive's robust K = 200 from track 12000:
+                # 5.28 -> 1.98 band at 45 samples, 2.35 band at 58 from the gap)
                 prev = max([k for k in self.sizes if k < c], default=0) - self.tin
                 self._spreads[c] = RobustSpread(maps + kt_maps, c, c + self.tail, self.settle, nmax_prev=max(prev, 0),
                                                 stride=self.linear._stride(c), current_only=len(kt_maps))
@@ -234,48 +235,31 @@ class EffectAwareDesigner:
         imaps: dict = {}                 # the guard's input map (gain, offset) each length's NLP used
         cache: dict = {}
 
-        def _warm_for(n, nmax, nlp, spread):
+        def _warm_for(n, nmax):
             """The NLP's starting feedforward and reference for a seek of ``n`` samples (length ``nmax``), and
-            the input map ``(gain, offset)`` along it for the guard rows: of the candidates below, the one
-            with the lowest worst residual after ``n`` on the NLP's own model (the set's spread included).
+            the input map ``(gain, offset)`` along it for the guard rows.
 
             A shorter seek's NLP answer at rest from ``m < n`` on is a seek of ``n`` samples as it is, with the
-            same worst residual after ``n`` or less: padded with rest, the best of them (lowest residual) is a
-            candidate, so that the residual the search reads cannot rise with the length.  (Time-stretching it
-            instead started the NLP at 54 and 62 samples of the combination drive's K = 200 from 50 % far from
-            the 50-sample answer and Ipopt stopped in a worse point: residual 0.80 / 1.32 / 1.36 band at
-            50 / 54 / 62 samples.)  The other candidate is the nearest feasible length, else the linear warm
-            start, time-stretched to ``n`` samples: a shorter answer that Ipopt left far from the band (the
-            robust Kt drive's K = 200 from 20 %: 1.98 band at 45 samples, from a warm start squeezed below the
-            set's own length) must not be the only start of every longer seek (measured: the search then
-            climbed 45 -> 48 -> 59 -> ... at 1.98 / 1.73 / 1.2 band and ended at 97 samples)."""
-            cands = []
+            same worst residual after ``n`` or less: padded with rest, the best of them (lowest residual) starts
+            the NLP, so that the residual the search reads cannot rise with the length.  Time-stretching it
+            instead (the former rule, and still the rule going down) started the NLP at 54 and 62 samples
+            of the combination drive's K = 200 from 50 % far from the 50-sample answer and Ipopt stopped in
+            a worse point: residual 0.80 / 1.32 / 1.36 band at 50 / 54 / 62 samples.  Without a shorter answer:
+            the nearest feasible length, else the warm start, time-stretched to ``n`` samples."""
             below = [m for m, (_, _, _, res) in cache.items() if m < n and math.isfinite(res)]
             if below:
                 m = min(below, key=lambda m: (cache[m][3], -m))
                 g, o = imaps[m]            # and its guard's input map, padded at rest: the same guard rows
-                cands.append((np.r_[cache[m][1], np.zeros(nmax - len(cache[m][1]))],
-                              np.r_[cache[m][2], np.zeros(nmax - len(cache[m][2]))],
-                              (np.r_[g, np.ones(n + tin - len(g))], np.r_[o, np.zeros(n + tin - len(o))])))
+                return (np.r_[cache[m][1], np.zeros(nmax - len(cache[m][1]))],
+                        np.r_[cache[m][2], np.zeros(nmax - len(cache[m][2]))],
+                        (np.r_[g, np.ones(n + tin - len(g))], np.r_[o, np.zeros(n + tin - len(o))]))
             ok_prev = [m for m, (ok, *_ ) in cache.items() if ok]
             m = min(ok_prev, key=lambda m: abs(m - n)) if ok_prev else n0
             vb, qb, (g, o) = (cache[m][1], cache[m][2], imaps[m]) if ok_prev else (v_w, q_w, (g_w, o_w))
             a, b = len(vb), n + tin                                   # input lengths
-            cands.append((np.r_[_stretch(vb, a, b) * (a / b) ** 2, np.zeros(nmax - b)],   # same distance in n samples
-                          np.r_[_stretch(qb, a, b), np.zeros(nmax - b)],
-                          (_stretch(g, len(g), b), _stretch(o, len(g), b) * (len(g) / b) ** 2)))   # the plan, time-stretched
-            if len(cands) == 1:
-                return cands[0]
-            return min(cands, key=lambda c: _worst_residual(nlp, spread, c[0], c[1], n))
-
-        def _worst_residual(nlp, spread, v, q, n):
-            """Worst |PES| [band] after sample ``n`` of the NLP's model, over the set (first order) when there is one."""
-            on = (np.arange(nlp.N) < n + tin).astype(float)
-            v, q = on * np.clip(v[:nlp.N], -1, 1), on * np.clip(q[:nlp.N], -2, 2)
-            _, e, _ = nlp.rollout(x0, v, q, K, T0, self.imax, uh)
-            if spread is not None:
-                e = np.vstack([e, e + spread.spread(v, q, K, self.imax)[0]]) if spread.n_band else e[None]
-            return float(np.max(np.abs(np.atleast_2d(e)[:, n:])))
+            return (np.r_[_stretch(vb, a, b) * (a / b) ** 2, np.zeros(nmax - b)],   # same distance in n samples
+                    np.r_[_stretch(qb, a, b), np.zeros(nmax - b)],
+                    (_stretch(g, len(g), b), _stretch(o, len(g), b) * (len(g) / b) ** 2))   # the plan, time-stretched
 
         def feasible(n, checking=False):
             # ``max_nlps`` bounds the length search; the full-plant check's step-up (at most ``check_steps``
@@ -289,7 +273,7 @@ class EffectAwareDesigner:
             if not checking and len(solves) >= st.max_nlps and any(ok for ok, *_ in cache.values()):
                 raise _Budget()
             nlp, spread = self._nlp(n)
-            v0, q0, imap = _warm_for(n, nlp.N, nlp, spread)
+            v0, q0, imap = _warm_for(n, nlp.N)
             imaps[n] = imap
             rec, v, q = nlp.solve(K, T0, n, self.imax, uh, x0, v0, q0, st.band_margin, st.current_margin, input_tail=tin,
                                   input_map=imap)
