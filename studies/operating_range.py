@@ -2,7 +2,7 @@
 
 Run::
 
-    python studies/operating_range.py [--quick] [--cache DIR] [--no-readme]
+    python studies/operating_range.py [--quick] [--cache DIR] [--no-readme] [--worst-case-slack TIME]
 
 1. **A synthetic drive family**: the default truth (NSS v2 seek mode + 420 Hz and 1738 Hz seek-induced
    modes) plus a mode inside the controller's 8.2 kHz notch (gain 0.1, zeta 0.01), at three
@@ -22,7 +22,10 @@ Run::
    default design at K = 200 and 1000 on the truth and on the truth with its seek-induced modes
    shifted +-5 %, with the former default (``RobustSpec()``) and the nominal design for comparison.
 
-Writes the tables into the README section between the ``operating_range`` markers (unless
+``--worst-case-slack 0.04ms``: every design lets its set's worst case settle up to that much after its
+minimum so that the nominal plant settles earlier (``SeekProblem.worst_case_slack_s``); the tables then
+show the set's samples (its minimum) and go into the README section between the ``operating_range_slack``
+markers.  Writes the tables into the README section between the ``operating_range`` markers (unless
 ``--no-readme``) and prints them.  Identified plants are cached in ``--cache`` (default
 ``/tmp/seekopt_operating_range``).
 """
@@ -40,6 +43,7 @@ sys.path.insert(0, str(ROOT))
 
 from identification.estimate.identify import identify  # noqa: E402
 from identification.model.plant import ModalPlant, Mode  # noqa: E402
+from seekopt.app.commands.common import parse_duration  # noqa: E402
 from seekopt.design.baselines import baseline_profile  # noqa: E402
 from seekopt.design.designer import DesignInfeasible, SeekDesigner  # noqa: E402
 from seekopt.design.family import Drift, calibrated, drifted, played_on  # noqa: E402
@@ -87,8 +91,8 @@ def md_table(head, rows) -> str:
     return "\n".join(out)
 
 
-def write_section(text: str) -> None:
-    begin, end = "<!-- BEGIN operating_range -->", "<!-- END operating_range -->"
+def write_section(text: str, name: str = "operating_range") -> None:
+    begin, end = f"<!-- BEGIN {name} -->", f"<!-- END {name} -->"
     old = README.read_text()
     block = f"{begin}\n{text.rstrip()}\n{end}"
     if begin in old and end in old:
@@ -146,7 +150,9 @@ def family_study(ks, cache: Path, options=None):
             pred_rows.append([label, f"{K:g}", f"{res.metrics.settle_time_s * 1e3:.3f}", f"{pw * 1e3:.3f}",
                               res.prediction.labels[res.prediction.binding] if res.prediction else "nominal",
                               f"{ar * 1e3:.3f} ({ar / pw:.2f})", f"{aw * 1e3:.3f} ({aw / pw:.2f})",
-                              f"{g.worst_band:.2f} at {g.worst_hz:.0f} Hz" if g else "-"])
+                              f"{g.worst_band:.2f} at {g.worst_hz:.0f} Hz" if g else "-"]
+                             + ([f"{res.settle_samples}", f"{res.set_settle_samples} ({res.set_min_settle_samples})"]
+                                if nf.get("worst_case_slack_s") else []))
             summary[(label, K)] = {"ratio": ratio, "tbb_room": act["room"].settle_time_s / tbb,
                                    "pred_ratio": aw / pw, "pred_ratio_room": ar / pw, "pred_worst_tbb": pw / tbb}
             print(rows[-1], pred_rows[-1], flush=True)
@@ -205,19 +211,32 @@ def main(argv=None) -> int:
     ap.add_argument("--before-after", action="store_true",
                     help="also design as before this change (inputs end at the settle sample, every plant's band "
                          "from one sample: input_tail_s=0, nominal_first=False) and tabulate both")
+    ap.add_argument("--worst-case-slack", default=None, metavar="TIME",
+                    help="design with SeekProblem.worst_case_slack_s (e.g. 0.04ms); tables into the README's "
+                         "operating_range_slack section")
     a = ap.parse_args(argv)
+    slack = parse_duration(a.worst_case_slack, "--worst-case-slack") if a.worst_case_slack else 0.0
+    opts = {"worst_case_slack_s": slack} if slack else None
     cache = Path(a.cache)
     cache.mkdir(parents=True, exist_ok=True)
     ks = (10.0, 200.0) if a.quick else KS
     t0 = time.perf_counter()
-    rows, pred, ident, summary = family_study(ks, cache)
-    nss_rows, nss = nss_study(cache)
+    rows, pred, ident, summary = family_study(ks, cache, opts)
+    nss_rows, nss = nss_study(cache, options=opts)
     old = {"input_tail_s": 0.0, "nominal_first": False}
     before = (family_study(ks, cache, old)[3], nss_study(cache, options=old)[1]) if a.before_after else None
     names = [n for n, *_ in MEMBERS]
+    fs = Controller.nss().sample_rate_hz
+    slack_cols = ["nominal smp", "set smp (min)"] if slack else []
     text = [
-        "### Measured (`studies/operating_range.py`)",
+        "### Measured (`studies/operating_range.py`)" if not slack else
+        f"### Measured with a worst-case slack of {slack * 1e3:.3g} ms = {int(slack * fs * (1 + 1e-9))} sample(s) "
+        f"(`studies/operating_range.py --worst-case-slack {a.worst_case_slack}`)",
         "",
+        *([f"Every design lets its set's worst case settle up to {slack * 1e3:.3g} ms after the set's minimum so "
+           "that the nominal plant settles earlier (`SeekProblem.worst_case_slack_s`, `seekopt design "
+           "--worst-case-slack`); the prediction table gives the design samples of the nominal plant and of the "
+           "set (its minimum).", ""] if slack else []),
         f"Synthetic family: the default truth plus a mode in the controller's 8.2 kHz notch (g {NOTCH_MODE.gain}, "
         f"zeta {NOTCH_MODE.zeta}); cold = every resonance x1.04, damping x0.8, gain x1.05; hot = x0.96, x1.2, "
         "x0.95; one 120-seek log per member (seeds 0/1/2), each identified on its own. Imax 0.3 A, band 0.1 track. "
@@ -234,7 +253,7 @@ def main(argv=None) -> int:
         "do; the guard's worst residual (fraction of the band, guarded mode gain included):",
         "",
         md_table(["design", "K", "pred nominal ms", "pred worst ms", "binding plant", "room ms (/pred worst)",
-                  "members' worst ms (/pred worst)", "guard"], pred),
+                  "members' worst ms (/pred worst)", "guard"] + slack_cols, pred),
         "",
         "Identification of each member: the notch mode (true gain 0.1) and the smallest gain the log could show "
         "there (`detectable_gain_curve`, calibrated on the identified modes' reported std):",
@@ -285,8 +304,8 @@ def main(argv=None) -> int:
     text = "\n".join(text)
     print(text)
     if not a.no_readme:
-        write_section(text)
-    (cache / "summary.json").write_text(json.dumps({f"{k[0]}|{k[1]:g}": v for k, v in summary.items()}, indent=1))
+        write_section(text, "operating_range_slack" if slack else "operating_range")
+    (cache / ("summary_slack.json" if slack else "summary.json")).write_text(json.dumps({f"{k[0]}|{k[1]:g}": v for k, v in summary.items()}, indent=1))
     return 0
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from seekopt.design.certificates import nnls_certificate, phase1_lp, proves_infeasible
+from seekopt.design.certificates import nnls_certificate, phase1_daqp, phase1_lp, proves_infeasible
 from tests.qp_cases import two_conflicting_rows
 
 
@@ -35,6 +35,20 @@ def test_nnls_certificate_proves_infeasible_rows_and_nothing_else(seed):
         assert (phase1_lp(A, lba, uba, lbx, ubx)[0] is not None) == infeasible
         if lam is not None:
             assert proves_infeasible(A, lba, uba, lbx, ubx, lam)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_phase1_daqp_proves_infeasible_rows_and_nothing_else(seed):
+    """daqp's phase-1 QP: verified multipliers exactly when the rows have no solution (as the phase-1 LP),
+    and always the added row (without it the rows have a solution)."""
+    for infeasible in (False, True):
+        A, lba, uba, lbx, ubx = _system(seed, infeasible)
+        lam, named = phase1_daqp(A, lba, uba, lbx, ubx)
+        assert named is not None
+        assert (lam is not None) == infeasible
+        if lam is not None:
+            assert proves_infeasible(A, lba, uba, lbx, ubx, lam)
+            assert lam[-1] != 0
 
 
 def test_nnls_certificate_cuts_in_the_rows_the_named_ones_lack():

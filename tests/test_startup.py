@@ -58,3 +58,77 @@ def test_design_path_imports_no_scipy_signal(tmp_path):
                          timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
     assert json.loads(out.stdout.strip().splitlines()[-1]) == []
+
+
+def test_blind_pes_maps_equal_the_simulated_loops_with_the_mode():
+    """The blind-band mode's PES maps by superposition on the design plant's loop equal the difference of
+    closed loops simulated with the mode (+g and -g) added to the plant (the one simulator)."""
+    from identification.model.plant import Mode
+    from seekopt.design.blind_pes import blind_pes_maps
+    from seekopt.drive.controller import Controller
+    from seekopt.drive.presets import default_truth_plant
+    from seekopt.drive.simulator import closed_loop_responses
+    plant, ctrl, H = default_truth_plant(), Controller.nss(), 300
+    freqs, gains = [11880.0, 15000.0], [1.0, 0.5]
+    maps = blind_pes_maps(plant, ctrl, H, freqs, gains)
+    lin = plant.linear_part().copy(meta={})
+    base = closed_loop_responses(lin, ctrl, H)
+    assert len(maps) == 2
+    for (du, dr), f, g in zip(maps, freqs, gains):
+        sim = {}
+        for s in (1.0, -1.0):
+            p = lin.copy(modes=sorted(list(lin.modes) + [Mode(f, 0.02, s * g)], key=lambda m: m.freq_hz))
+            r = closed_loop_responses(p, ctrl, H)
+            sim[s] = (r["y_uff"] - base["y_uff"], r["y_r"] - base["y_r"])
+        su, sr = (0.5 * (a - b) for a, b in zip(sim[1.0], sim[-1.0]))
+        assert np.max(np.abs(su)) > 1e-3 * np.max(np.abs(base["y_uff"][:50]))     # the mode matters
+        assert np.allclose(du, su, rtol=0, atol=1e-9 * np.max(np.abs(su)))
+        assert np.allclose(dr, sr, rtol=0, atol=1e-9 * np.max(np.abs(sr)))
+    # the designer's own loop given as the base: the same maps
+    m2 = blind_pes_maps(plant, ctrl, H, freqs, gains, base=base)
+    assert all(np.array_equal(a, b) for p, q in zip(maps, m2) for a, b in zip(p, q))
+
+
+def _fresh(code: str, tmp_path, **env_extra):
+    env = {k: v for k, v in os.environ.items() if k not in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS",
+                                                            "MKL_NUM_THREADS", "VECLIB_MAXIMUM_THREADS")}
+    env.update(PYTHONPATH=str(ROOT), **env_extra)
+    out = subprocess.run([sys.executable, "-c", code], env=env, cwd=tmp_path, capture_output=True, text=True,
+                         timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def test_cli_blas_limit_before_numpy_loads(tmp_path):
+    """The command line's BLAS limit in a fresh process: no library loaded yet, so the environment alone
+    limits numpy's and scipy's OpenBLAS when they load (one thread each, nothing imported early); with
+    numpy already loaded, threadpoolctl limits it."""
+    code = ("import sys, json\n"
+            "from seekopt.app import cli\n"
+            "early = 'numpy' in sys.modules\n"
+            "with cli._blas_threads():\n"
+            "    before = sorted(m for m in ('numpy', 'scipy', 'threadpoolctl') if m in sys.modules)\n"
+            "    import numpy, scipy.linalg\n"
+            "    from threadpoolctl import threadpool_info\n"
+            "    n = sorted({p['num_threads'] for p in threadpool_info() if p['user_api'] == 'blas'})\n"
+            "print(json.dumps([early, before, n]))\n")
+    assert _fresh(code, tmp_path) == [False, [], [1]]
+    code2 = ("import sys, json, numpy, scipy.linalg\n"
+             "from seekopt.app import cli\n"
+             "from threadpoolctl import threadpool_info\n"
+             "with cli._blas_threads():\n"
+             "    n = sorted({p['num_threads'] for p in threadpool_info() if p['user_api'] == 'blas'})\n"
+             "print(json.dumps(n))\n")
+    assert _fresh(code2, tmp_path, OPENBLAS_NUM_THREADS="2", OMP_NUM_THREADS="2") == [1]
+
+
+def test_cli_robust_design_imports_no_scipy_optimize(tmp_path):
+    """``seekopt design --robust`` K = 1000 on the bundled plant (the cold-start benchmark of issue 12)
+    proves its infeasible lengths without scipy.optimize (0.15 s of import) or scipy.signal."""
+    plant = ROOT / "seekopt" / "data" / "sample_log.truth.json"
+    code = ("import sys, json\n"
+            "from seekopt.app.cli import main\n"
+            f"rc = main(['design', '--plant', {str(plant)!r}, '--tracks', '1000', '--imax', '0.3', '--robust',"
+            " '-q', '-o', 'p.csv'])\n"
+            "print(json.dumps([rc, sorted(m for m in sys.modules if m.startswith(('scipy.optimize', 'scipy.signal')))]))\n")
+    assert _fresh(code, tmp_path, OPENBLAS_NUM_THREADS="1") == [0, []]

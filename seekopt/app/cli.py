@@ -56,6 +56,9 @@ bad input is one line on stderr and exit status 2; 'seekopt COMMAND -h' lists a 
 """
 _CONTROLLER_HELP = ("the drive's feedback controller, JSON (default: the IEEJ NSS benchmark's PID + notch, "
                     "26400 Hz); must run at the plant's sample rate")
+_SLACK_HELP = ("let the worst case over the plant set settle up to this much later than its minimum (e.g. 0.04ms, "
+               "40us; rounded down to servo samples) so that the design plant settles earlier (default 0: the "
+               "set's minimum); see 'Operating range' in the README")
 
 
 class _Formatter(argparse.RawDescriptionHelpFormatter):
@@ -143,6 +146,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--start-track", type=float, default=None, metavar="TRACK",
                    help="track the seek starts from (default: the middle of the plant's position_range_track, 0 "
                         "without one); a plant with position-dependent effects never extrapolates beyond that range")
+    s.add_argument("--worst-case-slack", default="0", metavar="TIME", help=_SLACK_HELP)
     s.add_argument("-o", "--output", required=True, metavar="PROFILE.csv", help="profile CSV to write")
     s.set_defaults(func=cmd_design)
 
@@ -192,6 +196,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("-o", "--output", required=True, metavar="DIR",
                    help="results folder (created; rerunning resumes it, two sweeps into it share the cells)")
     s.add_argument("--no-figures", action="store_true", help="write the table only, no sweep figures (faster)")
+    s.add_argument("--worst-case-slack", default="0", metavar="TIME",
+                   help=_SLACK_HELP.replace("so that", "(ocp designers; kept in the sweep's configuration, so "
+                                                         "'seekopt export' designs with it too) so that"))
     s.set_defaults(func=cmd_sweep)
 
     s = command("export", "export a sweep's optimal profiles (and tables for every seek length) as fixed-point "

@@ -12,6 +12,7 @@ import numpy as np
 
 from identification.model.plant import ModalPlant, Mode
 
+from seekopt.design.blind_pes import ID_ERROR_ROLE
 from seekopt.design.members import family_spread, member
 from seekopt.design.predict import set_identity, set_label
 from seekopt.design.robust import orthogonal_array_signs   # the one Sylvester-Hadamard construction (robust vertices too)
@@ -30,9 +31,10 @@ def drifted(plant: ModalPlant, temp: float = 0.0, zeta: float = 0.0, gain: float
 
 
 def _vary(nominal: ModalPlant, label: str, temp=0.0, zeta=0.0, gain=0.0, delay=0.0, sf=None, sz=None, sg=None,
-          ffgain=0.0):
+          ffgain=0.0, role=None):
     """A vertex: drifted plant; its gain drift ``gain`` compensated by the drive's feedforward calibration,
-    ``ffgain`` the calibration's error (``meta["ff_scale"] = (1 + ffgain) / (1 + gain)``)."""
+    ``ffgain`` the calibration's error (``meta["ff_scale"] = (1 + ffgain) / (1 + gain)``); ``role``: its
+    ``meta["set_role"]`` (None: an operating condition, none)."""
     n = len(nominal.modes)
     sf = np.zeros(n) if sf is None else sf
     sz = np.zeros(n) if sz is None else sz
@@ -43,6 +45,9 @@ def _vary(nominal: ModalPlant, label: str, temp=0.0, zeta=0.0, gain=0.0, delay=0
                   m.gain * (1 + c), m.std) for m, a, b, c in zip(nominal.modes, sf, sz, sg)]
     meta = dict(nominal.meta or {})
     meta["set_label"] = label
+    meta.pop("set_role", None)
+    if role:
+        meta["set_role"] = role
     scale = (1 + ffgain) / (1 + gain)
     if scale != 1.0:
         meta["ff_scale"] = scale
@@ -113,6 +118,7 @@ def _mode_corners(plant: ModalPlant, r, label: str) -> list:
                          for m, a in zip(plant.modes, arr)]
                 meta = dict(plant.meta or {})
                 meta["set_label"] = f"{label} {what} {'+' if sgn > 0 else '-'}"
+                meta["set_role"] = ID_ERROR_ROLE        # the identification's error (blind_pes_plants)
                 out.append(plant.copy(modes=modes, meta=meta))
     return out
 
@@ -131,6 +137,9 @@ def drift_set(nominal: ModalPlant, family, drift) -> list:
     ("oa 1", ...) over the per-mode ranges (each mode's frequency, damping and gain at +- its
     range: columns of a Sylvester-Hadamard array, strength 2).  Plants that coincide as drives
     (:func:`~seekopt.design.predict.set_identity`: the plant and its feedforward calibration) are kept once.
+    The per-mode corners and the array rows stand for the identification's own error and carry
+    ``meta["set_role"]`` :data:`~seekopt.design.blind_pes.ID_ERROR_ROLE` (no blind-band mode's PES rows on
+    them: :func:`seekopt.design.blind_pes.blind_pes_plants`); the others are operating conditions.
     """
     rng_ = drift.ranges(nominal, family)
     nom = _vary(nominal, "nominal")
@@ -155,7 +164,8 @@ def drift_set(nominal: ModalPlant, family, drift) -> list:
         rows = orthogonal_array_signs(factors, drift.n_samples, {"f": n, "z": n, "g": n},
                                       np.random.default_rng(drift.seed))
         for r, s in enumerate(rows, 1):
-            out.append(_vary(nominal, f"oa {r}", sf=s["f"] * rng_.df, sz=s["z"] * rng_.dz, sg=s["g"] * rng_.dg))
+            out.append(_vary(nominal, f"oa {r}", sf=s["f"] * rng_.df, sz=s["z"] * rng_.dz, sg=s["g"] * rng_.dg,
+                             role=ID_ERROR_ROLE))
     uniq, seen = [], set()
     for p in out:
         h = set_identity(p)

@@ -48,7 +48,11 @@ small QPs on the problem's set, kept) gives every such seek as four shifted copi
 **The dispatch rule** (:meth:`LongSeekDesigner.design`, the rule of ``seekopt design``):
 
 1. with ``vmax`` and a seek long enough to coast at it (:meth:`~LongSeekDesigner.needs_coast`): the velocity
-   step to ``vmax`` and its mirror (above);
+   step to ``vmax`` and its mirror (above) on one plant; on a plant set the acceleration step of rule 2 with
+   ``n`` capped at ``vmax`` (the velocity step only when that gives no plan): on the robust set the
+   velocity step's QP (about 90 samples on every plant) took 13.9 s CPU and settled no sooner (1e4 and
+   15849 tracks at 2e6 track/s: 8.64 / 11.59 ms against 8.56 / 11.55 ms; 0.04-0.6 ms later beyond,
+   ``docs/results_longseek.md``), while on one plant it costs 0.6 s and settles 0.7 ms sooner;
 2. else, from ``long_from_track = c I0 n_floor^2`` tracks on (``n_floor = 32`` samples at ``I0``: the older
    terms are on the step's quiet rows; below the step's length ``N_J`` the transitions overlap and a plan
    is kept only if its nominal current is within ``(1 + gamma) / 2 Imax`` with the hold, as the velocity
@@ -58,6 +62,18 @@ small QPs on the problem's set, kept) gives every such seek as four shifted copi
    by simulation (Imax, settled by the predicted sample); seeks up to ``LongSeekSpec.rest_to_rest_up_to_track``
    (``--rest-to-rest-up-to``) stay with the rest-to-rest QP, which settles sooner at a cost that grows
    with the length;
+   with ``LongSeekSpec.compare_below_long`` (sweeps: on; ``seekopt design``: off, as a single design would
+   pay the step and the reference first), from ``c I0 COMPOSE_FROM_SAMPLES^2`` (14 samples at ``I0``)
+   to ``long_from_track`` the composition (``n >= 14``) is taken when its predicted settle is within
+   ``SETTLE_RATIO = 1.15`` of
+   ``T_bb + O``, ``O`` the settle overhead of the rest-to-rest design of ``compare_from_track`` tracks
+   (one cheap design per designer, kept): the rest-to-rest overhead grows with the length or stays flat
+   (robust sweep set, samples: 200k TPI 27.6 at 10 samples at ``I0``, 29.2 at 20, 27.6 at 25.5; 500k 36.6,
+   38.2, 40.2; 1000k 41.6, 49.8, 52.1, 50.3), so ``T_bb + O`` is mostly a low estimate of the
+   rest-to-rest settle (one exception measured in the 9 x 20 grid: 300k TPI, 2069 tracks, 1.155x).
+   Why: the rest-to-rest QPs near ``n_floor`` have 80-110 samples, and robust ones at high track density
+   took 5-282 s CPU each (``docs/results_sweep_scaling.md``), while the composition settles within
+   1.00-1.08x of them there (``docs/results_longseek.md``);
 3. else the rest-to-rest QP (:class:`~seekopt.design.designer.SeekDesigner`), its peak velocity checked
    against ``vmax``.
 
@@ -79,6 +95,16 @@ from seekopt.design.longseek_spec import (I0_FRACTION, LongSeekError, LongSeekSp
                                           t_accel_coast_decel, vmax_from_plant)
 from seekopt.design.longseek_steps import ACCEL_QUIET, StepDesigns
 from seekopt.design.velocity_step import VelocityStep
+
+#: Bang-bang samples at ``I0`` of the reference rest-to-rest seek of the dispatch (module notes, rule 2):
+#: its robust design is cheap at every track density of the sweep (0.2-3.9 s CPU at 200k-1000k TPI).
+COMPARE_SAMPLES = 10
+#: Fewest samples at ``I0`` of a composition below ``long_from_track``: shorter seeks stay rest-to-rest, whose
+#: QPs are cheap there at every track density of the sweep (<= 1.4 s CPU robust, 200k-1000k TPI) and settle
+#: 11-14 % sooner than the composition at 300k-500k TPI.
+COMPOSE_FROM_SAMPLES = 14
+#: Settle allowed to a composition below ``long_from_track`` against the rest-to-rest design (issue 12).
+SETTLE_RATIO = 1.15
 
 __all__ = ["LongSeekSpec", "VelocityStep", "AccelStep", "LongSeekDesigner", "LongSeekError", "vmax_from_plant",
            "stroke_from_plant", "t_accel_coast_decel", "I0_FRACTION"]
@@ -133,6 +159,7 @@ class LongSeekDesigner(StepDesigns):
         self.accel_quiet = ACCEL_QUIET
         self._maps, self._maps_h = None, 0
         self._nominal = None
+        self._r2r_over = None
 
     # ------------------------------------------------------------------ steps (StepDesigns) and dispatch
     def n_floor(self) -> int:
@@ -145,18 +172,63 @@ class LongSeekDesigner(StepDesigns):
         return self.accel_step().accel_track * self.n_floor() ** 2
 
     def _is_long(self, K: float) -> bool:
-        """The dispatch rule (module notes): from :meth:`long_from_track` on (cheap test first: below
-        ``c lim 32^2`` no step is designed)."""
+        """May the acceleration step build this seek (module notes, rule 2)?  From ``COMPOSE_FROM_SAMPLES``
+        samples at ``I0`` on with ``compare_below_long``, else from :meth:`long_from_track`; unless
+        ``rest_to_rest_up_to_track`` keeps it (cheap test first: below :meth:`_long_lower_bound` no step
+        is designed)."""
         if abs(K) < self._long_lower_bound():
             return False
         r2r = self.spec.rest_to_rest_up_to_track
         if r2r is not None and abs(K) <= r2r:
             return False
-        return abs(K) >= self.long_from_track()
+        if not self.spec.compare_below_long:
+            return abs(K) >= self.long_from_track()
+        return abs(K) >= self.accel_step().accel_track * COMPOSE_FROM_SAMPLES ** 2
 
     def _long_lower_bound(self) -> float:
-        """``c I0_FRACTION lim 32^2`` [track]: no shorter seek is built from the step (``I0 <= I0_FRACTION lim``)."""
-        return self.plant.k0 / self.fs ** 2 * I0_FRACTION * self._lim() * 32 ** 2
+        """``c I0_FRACTION lim n^2`` [track] (``n``: ``COMPOSE_FROM_SAMPLES`` with
+        ``LongSeekSpec.compare_below_long``, else :meth:`n_floor`): no shorter seek is built from the step
+        (``I0 <= I0_FRACTION lim``)."""
+        n = COMPOSE_FROM_SAMPLES if self.spec.compare_below_long else self.n_floor()
+        return self.plant.k0 / self.fs ** 2 * I0_FRACTION * self._lim() * n ** 2
+
+    def compare_from_track(self) -> float:
+        """``c I0 COMPARE_SAMPLES^2`` [track]: the reference rest-to-rest seek; longer seeks below
+        :meth:`long_from_track` take the composition when it settles within ``SETTLE_RATIO`` of the
+        rest-to-rest settle predicted from it (:meth:`rest_to_rest_overhead`)."""
+        return self.accel_step().accel_track * COMPARE_SAMPLES ** 2
+
+    def rest_to_rest_overhead(self) -> float:
+        """Settle overhead [samples] (settle - T_bb) of the rest-to-rest design of :meth:`compare_from_track`
+        tracks on the design plant (designed once by the short designer, kept).  The overhead of the
+        rest-to-rest designs grows with the length or stays flat (robust sweep set, module notes), so
+        ``T_bb + overhead`` is a low estimate of a longer seek's rest-to-rest settle."""
+        if self._r2r_over is None:
+            from seekopt.design.profiles import t_bang_bang
+            from seekopt.design.result import DesignError, DesignInfeasible
+            K = self.compare_from_track()
+            try:
+                res = self.short_designer().design(K)
+            except (DesignError, DesignInfeasible):      # nothing to compare with: no composition below
+                self._r2r_over = -math.inf               # long_from_track
+            else:
+                self._r2r_over = (res.metrics.settle_time_s - t_bang_bang(K, self.plant.k0, self.imax)) * self.fs
+        return self._r2r_over
+
+    def _plan(self, K: float):
+        """The composition's plan (:func:`~seekopt.design.accel_step.plan_seek`) under the dispatch rule
+        (module notes, rule 2), or None: from :meth:`long_from_track` on any plan; below it, a plan whose
+        predicted settle is within ``SETTLE_RATIO (T_bb + rest_to_rest_overhead())``."""
+        lim = 0.5 * (1 + self.gamma) * self.imax - abs(self.plant.bias_a)
+        st = self.accel_step()
+        if abs(K) >= self.long_from_track():
+            return plan_seek(st, K, self.n_floor(), self._n_vmax(), self.settle, current_limit_a=lim)
+        plan = plan_seek(st, K, COMPOSE_FROM_SAMPLES, self._n_vmax(), self.settle, current_limit_a=lim)
+        if plan is None:
+            return None
+        from seekopt.design.profiles import t_bang_bang
+        r2r = t_bang_bang(K, self.plant.k0, self.imax) * self.fs + self.rest_to_rest_overhead()
+        return plan if plan[2] <= SETTLE_RATIO * r2r else None
 
     def _n_vmax(self) -> float:
         v = self.spec.vmax_track_s
@@ -217,19 +289,24 @@ class LongSeekDesigner(StepDesigns):
         plan settles on every plant) the rest-to-rest designer, its rigid peak velocity checked against
         ``vmax``.  Every long seek is verified by simulation on the design plant.
         """
-        from seekopt.design.designer import DesignError, DesignResult
-        from seekopt.design.metrics import evaluate_profile
-        from seekopt.design.profiles import Profile
+        from seekopt.design.designer import DesignError
         K = self.check_seek(tracks)
         t0 = time.process_time()
         vmax = self.spec.vmax_track_s
-        coast = self.needs_coast(K)
+        on_set = len(self.plants) > 1        # rule 1 on a plant set: the acceleration step capped at vmax
+        coast = not on_set and self.needs_coast(K)
         fresh = self._accel is None          # the step's QPs count for the design that builds it
         if not coast and self._is_long(K):
-            plan = plan_seek(self.accel_step(), K, self.n_floor(), self._n_vmax(), self.settle,
-                             current_limit_a=0.5 * (1 + self.gamma) * self.imax - abs(self.plant.bias_a))
+            plan = self._plan(K)
             if plan is not None:
-                return self._design_accel(K, *plan, t0=t0, fresh=fresh)
+                try:
+                    return self._design_accel(K, *plan, t0=t0, fresh=fresh)
+                except DesignError:
+                    if not (on_set and self.needs_coast(K)):
+                        raise
+                    coast = True             # the velocity step to vmax, as on one plant
+        if on_set and not coast:
+            coast = self.needs_coast(K)      # no plan (e.g. vmax below the step's floor): velocity step
         if not coast:
             res = self.short_designer().design(K)
             if vmax is None:
@@ -241,6 +318,33 @@ class LongSeekDesigner(StepDesigns):
             step = self.step_for(K)       # too fast and too short to coast at vmax: coast slower
         else:
             step = self.velocity_step(vmax)
+        return self._design_velocity(K, step, t0)
+
+    def design_velocity_step(self, tracks: float):
+        """The seek of ``tracks`` from the velocity step to ``vmax`` and its mirror (rule 1 on one plant),
+        whatever the dispatch; ``vmax`` must be set and the seek long enough to coast at it."""
+        K = self.check_seek(tracks)
+        if not self.needs_coast(K):
+            raise LongSeekError(f"seek of {K:g} tracks does not coast at vmax (or no vmax is set)")
+        return self._design_velocity(K, self.velocity_step(self.spec.vmax_track_s), time.process_time())
+
+    def design_accel_step(self, tracks: float):
+        """The seek of ``tracks`` from four acceleration steps (rule 2, ``n`` capped at ``vmax``, from
+        ``n_floor`` samples at ``I0`` on), whatever the dispatch."""
+        K = self.check_seek(tracks)
+        t0, fresh = time.process_time(), self._accel is None
+        lim = 0.5 * (1 + self.gamma) * self.imax - abs(self.plant.bias_a)
+        plan = plan_seek(self.accel_step(), K, self.n_floor(), self._n_vmax(), self.settle, current_limit_a=lim)
+        if plan is None:
+            raise LongSeekError(f"no acceleration-step plan settles the seek of {K:g} tracks on every plant")
+        return self._design_accel(K, *plan, t0=t0, fresh=fresh)
+
+    def _design_velocity(self, K: float, step: VelocityStep, t0: float):
+        """The seek of ``K`` tracks from ``step`` and its mirror (module notes), verified by simulation."""
+        from seekopt.design.designer import DesignError, DesignResult
+        from seekopt.design.metrics import evaluate_profile
+        from seekopt.design.profiles import Profile
+        vmax = self.spec.vmax_track_s
         u, r, m, s = step.compose(K)
         meta = {"plant_hash": self.plant.hash(), "controller_hash": self.controller.hash(),
                 "design_objective": "long_seek/accelerate-coast-arrive", "coast_samples": m,

@@ -16,6 +16,8 @@ import numpy as np
 
 from identification.model.plant import ModalPlant, atomic_write_text
 
+from seekopt.design.problem_checks import (ProblemError, check_closed_loop, fraction, nonnegative_s, positive,
+                                           samples_within)
 from seekopt.design.robust import RobustSpec
 from seekopt.design.solvers import DAQP_PKG, QP_SOLVERS
 from seekopt.drive.loopcheck import closed_loop_poles
@@ -64,10 +66,6 @@ TAIL_CYCLES = 2.0
 LIGHT_DAMPING = 0.1
 #: ... but never more than this [s] (a lightly damped loop pole below ~70 Hz is a loop problem, not a seek's)
 TAIL_MAX_S = 0.03
-
-
-class ProblemError(ValueError):
-    """A seek problem that cannot be designed for (bad numbers, unstable loop); one-line message."""
 
 
 @dataclass
@@ -150,12 +148,6 @@ class SolverSettings:
         return cls(**d)
 
 
-def _positive(name, v):
-    if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-        raise ProblemError(f"{name} must be a positive number (got {v!r})")
-    return float(v)
-
-
 @dataclass(eq=False)
 class SeekProblem:
     """One seek-design problem: the drive, the limits and what "settled" means.
@@ -222,6 +214,15 @@ class SeekProblem:
         set first, then, holding it, the nominal plant's (the nominal plant may settle before the set's
         worst; :meth:`seekopt.design.designer.SeekDesigner._nominal_first`).  False: every plant's band
         from the same sample (the worst case alone).
+    worst_case_slack_s : float
+        The servo engineer's trade-off between the set's worst case and the nominal plant [s] (rounded down
+        to whole servo samples, :meth:`worst_case_slack_samples`): the lexicographic design may let the
+        set's worst seek-settle time be up to this much later than its minimum ``N`` (the set's band rows
+        from ``N + slack`` at most, the seek that long) so that the nominal plant settles earlier; of the
+        lengths within the slack the shortest that keeps the nominal plant's earliest settle is taken.
+        0 (default): the set's minimum exactly.  Needs ``nominal_first``.  Stated in s, not samples,
+        like every time of the problem (a slack means the same at any servo rate; the family of
+        ``studies/operating_range.py`` needs one sample, 38 us at 26.4 kHz, for the room plant's 32 samples).
     solver : SolverSettings
     """
 
@@ -246,34 +247,37 @@ class SeekProblem:
     check_robust: bool = False
     input_tail_s: float = 3e-4
     nominal_first: bool = True
+    worst_case_slack_s: float = 0.0
     solver: SolverSettings = field(default_factory=SolverSettings)
 
     def __post_init__(self):
-        self.imax_a = _positive("imax", self.imax_a)
-        self.settle_band_track = _positive("settle band", self.settle_band_track)
+        self.imax_a = positive("imax", self.imax_a)
+        self.settle_band_track = positive("settle band", self.settle_band_track)
         if isinstance(self.robust, str):
             self.robust = None if self.robust.lower() == "none" else RobustSpec.from_string(self.robust)
         if self.band_margin is None:
             self.band_margin = default_band_margin(self.robust)
-        for name in ("band_margin", "current_margin"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and 0 < v <= 1):
-                raise ProblemError(f"{name} must be in (0, 1] (got {v!r})")
+        self.band_margin = fraction("band_margin", self.band_margin)
+        self.current_margin = fraction("current_margin", self.current_margin)
         if self.reference not in ("free", "model", "rigid"):
             raise ProblemError(f"reference must be 'free', 'model' or 'rigid', not {self.reference!r}")
         self.family = list(self.family or [])
         if self.slew_a_per_s is not None:
-            self.slew_a_per_s = _positive("slew", self.slew_a_per_s)
+            self.slew_a_per_s = positive("slew", self.slew_a_per_s)
         if self.hf_guard is not None:
             self.hf_guard = tuple(float(f) for f in self.hf_guard)
         self.guard_bands_hz = tuple(tuple(float(v) for v in b) for b in (self.guard_bands_hz or ()))
         self.blind_pes_points = int(self.blind_pes_points)
         if self.blind_pes_tol is not None:
             self.blind_pes_tol = float(self.blind_pes_tol)
-        self.tail_s = _positive("tail_s", self.tail_s)
+        self.tail_s = positive("tail_s", self.tail_s)
         self.input_tail_s = float(self.input_tail_s)
         if not (math.isfinite(self.input_tail_s) and 0 <= self.input_tail_s < self.tail_s):
             raise ProblemError(f"input_tail_s must be in [0, tail_s) (got {self.input_tail_s!r})")
+        self.worst_case_slack_s = nonnegative_s("worst_case_slack_s", self.worst_case_slack_s)
+        if self.worst_case_slack_s > 0 and not self.nominal_first:
+            raise ProblemError("worst_case_slack_s needs nominal_first (the slack lets the nominal plant settle "
+                               "before the set's worst)")
         if isinstance(self.solver, dict):
             self.solver = SolverSettings.from_dict(self.solver)
 
@@ -281,6 +285,11 @@ class SeekProblem:
     @property
     def sample_rate_hz(self) -> float:
         return float(self.controller.sample_rate_hz)
+
+    def worst_case_slack_samples(self) -> int:
+        """:attr:`worst_case_slack_s` in whole servo samples (rounded down: the set's worst case is never
+        later than stated)."""
+        return samples_within(self.worst_case_slack_s, self.sample_rate_hz)
 
     def blind_pes_bound(self) -> float | None:
         """Bound of the blind-band mode's PES rows [fraction of the band] (:mod:`seekopt.design.blind_pes`),
@@ -374,21 +383,6 @@ def _robust_from_dict(d: dict):
         from seekopt.design.family import Drift
         return Drift.from_dict(d)
     return RobustSpec.from_dict(d)
-
-
-def check_closed_loop(plant: ModalPlant, controller, margin: float = 1e-9) -> float:
-    """Spectral radius of the closed loop of ``plant``'s linear part under ``controller`` (servo rate):
-    the poles of :func:`seekopt.drive.loopcheck.closed_loop_poles` (the plant discretised as the
-    simulator runs it, the controller lifted to the servo rate).  Raises :class:`ProblemError` (one
-    line) when a pole is on or outside the unit circle."""
-    poles = closed_loop_poles(plant, controller)
-    rho = float(np.max(np.abs(poles))) if poles.size else 0.0
-    if not math.isfinite(rho) or rho >= 1.0 - margin:
-        p = poles[int(np.argmax(np.abs(poles)))] if poles.size else complex("nan")
-        f = abs(np.angle(p)) * float(controller.sample_rate_hz) / (2 * math.pi)
-        raise ProblemError(f"closed loop of the plant and controller {getattr(controller, 'name', '')!r} is "
-                           f"unstable: pole |z| = {rho:.6g} at {f:.0f} Hz")
-    return rho
 
 
 def band_tail_samples(plant: ModalPlant, controller, tail_s: float) -> int:

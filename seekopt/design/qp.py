@@ -22,11 +22,12 @@ import numpy as np
 
 from seekopt.design.loop_maps import LoopMaps, toeplitz_rows
 from seekopt.design.profiles import rigid_endpoint_matrix
+from seekopt.design.qp_rows import SeekRows
 # solver names re-exported for callers of the former combined module
 from seekopt.design.modal_residual import (dtft, hf_guard_matrix, mode_residual_phasors,  # noqa: F401
                                             mode_residual_rows, mode_residuals)
 from seekopt.design.solvers import (QP_PLUGINS, ConicQP, IpoptQP, QPSolution, constraint_violation, dm,  # noqa: F401
-                                     make_qp_solver)
+                                     make_qp_solver, violation_of)
 
 __all__ = ["LoopMaps", "toeplitz_rows", "hf_guard_matrix", "mode_residual_phasors", "mode_residual_rows", "mode_residuals", "dtft", "pes_row_samples", "set_row_samples", "SeekQP"]
 
@@ -99,8 +100,10 @@ class SeekQP:
     * total current, each sub-step of ``k < nmax + 40`` (other plants of the set: ``nmax + 8``):
       ``|i| / Imax <= gamma``;
     * unmodelled-mode guard (nominal plant): residual of modes in ``[f_lo, f_hi]`` <= ``hf_tol band``;
-    * blind-band mode's PES (``bpes``, :mod:`seekopt.design.blind_pes`) added to each band plant's, both
-      signs, samples ``k >= N`` (minimum seek-settle designs only): ``|e_i(k) +- dPES_f(k) / band| <= bpes_tol``;
+    * blind-band mode's PES (``bpes``, :mod:`seekopt.design.blind_pes`) added to each band plant's of
+      ``bpes_plants`` (None: all), both signs, samples ``k >= N`` (minimum seek-settle designs only):
+      ``|e_i(k) +- dPES_f(k) / band| <= bpes_tol`` (derived rows after all others, never stored:
+      :class:`~seekopt.design.qp_rows.SeekRows`, :attr:`rows`; ``A0``, ``A1`` hold the explicit rows);
     * rigid rest-to-rest: ``M u_ff = [K, 0]`` (:func:`seekopt.design.profiles.rigid_endpoint_matrix`);
     * optional slew ``|u_ff(k) - u_ff(k-1)| <= slew / fs``.
 
@@ -113,7 +116,7 @@ class SeekQP:
                  band_plants: list, solver, *, epigraph: bool = False, R=None, hf=None, slew=None,
                  rho: float = 1e-2, rho_q: float = 1e-3, w_e: float = 1.0, w_t: float = 10.0,
                  eps: float = 1e-9, current_extra: int = 40, stride: int = 1, input_tail: int = 0,
-                 bpes=None, bpes_tol: float | None = None):
+                 bpes=None, bpes_tol: float | None = None, bpes_plants=None):
         t_build = time.perf_counter()
         Ns, Hn = int(nmax), int(horizon)
         self.input_tail = int(input_tail)
@@ -182,17 +185,6 @@ class SeekQP:
             if self.free_ref:
                 return imax * Tu / band, Tr / band, z, (s_r[ks_other] - target) / band
             return imax * (Tu[:, :N] + Tr @ Rfull) / band, None, z, z - target / band
-        # a blind-band mode's PES added to each band plant's (seekopt.design.blind_pes), both signs
-        bp_plants = [i for i in range(len(maps)) if i in set(band_plants)] if bpes else []
-        for i in bp_plants:
-            m = maps[i]
-            pv, pq, p0, p1 = pos_block(m.y_u, m.y_r, m.s_yr, 1.0)
-            for dy_u, dy_r in bpes:
-                dv, dq, d0, d1 = pos_block(dy_u, dy_r, np.cumsum(dy_r), 0.0)
-                for sgn in (1.0, -1.0):
-                    blocks.append((pv + sgn * dv, None if pq is None else pq + sgn * dq, None))
-                    c0.append(p0 + sgn * d0); c1.append(p1 + sgn * d1)
-                    kinds += [("bpes", i, int(k)) for k in ks_other]
         M = rigid_endpoint_matrix(N, maps[0].k0, 1.0 / fs)
         self.M = M
         # rows scaled by the bucket's reach: s_pos = k0 Ts^2 Imax N^2 / 4, s_vel = k0 Ts^2 Imax N
@@ -205,12 +197,39 @@ class SeekQP:
             D = np.eye(N + 1, N) - np.eye(N + 1, N, -1)
             blocks.append((D, None, None)); c0.append(np.zeros(N + 1)); c1.append(np.zeros(N + 1))
             kinds += [("slew", 0, j) for j in range(N + 1)]
+        self.A0, self.A1 = _assemble(blocks, n, N)    # the explicit rows
+        # a blind-band mode's PES added to each band plant's (seekopt.design.blind_pes), both signs: derived
+        # rows (a band row +- a shared row, seekopt.design.qp_rows), after the explicit rows;
+        # ``bpes_plants``: only those (None: every band plant)
+        bp_plants = [i for i in range(len(maps)) if i in set(band_plants)
+                     and (bpes_plants is None or i in set(bpes_plants))] if bpes else []
+        if bp_plants and epigraph:
+            raise ValueError("blind-band PES rows need the band rows of the non-epigraph QP")
+        D0 = D1 = None
+        vp, vd, vs = [], [], []
+        if bp_plants:
+            row_of = {(kd[1], kd[2]): r for r, kd in enumerate(kinds) if kd[0] == "pes"}
+            dblocks = []
+            for dy_u, dy_r in bpes:
+                dv, dq, d0, d1 = pos_block(dy_u, dy_r, np.cumsum(dy_r), 0.0)
+                dblocks.append((dv, dq, None, d0, d1))
+            D0, D1 = _assemble([b[:3] for b in dblocks], n, N)
+            nk = len(ks_other)
+            c0b, c1b = np.concatenate(c0), np.concatenate(c1)
+            for i in bp_plants:
+                prow = np.array([row_of[(i, int(k))] for k in ks_other])
+                for f, b in enumerate(dblocks):
+                    for sgn in (1.0, -1.0):
+                        vp.append(prow); vd.append(f * nk + np.arange(nk)); vs.append(np.full(nk, sgn))
+                        c0.append(c0b[prow] + sgn * b[3]); c1.append(c1b[prow] + sgn * b[4])
+                        kinds += [("bpes", i, int(k)) for k in ks_other]
+        cat = (lambda v: np.concatenate(v)) if vp else (lambda v: None)
+        self.rows = SeekRows(self.A0, self.A1, D0, D1, cat(vp), cat(vd), cat(vs))
         self.kind = np.array([k[0] for k in kinds])
         self.plant_idx = np.array([k[1] for k in kinds])
         self.sample = np.array([k[2] for k in kinds])
-        self.A0, self.A1 = _assemble(blocks, n, N)
         self.c0, self.c1 = np.concatenate(c0), np.concatenate(c1)
-        self.m = self.A0.shape[0]
+        self.m = self.rows.m
         self.band_plants = set(band_plants)
         self.slew = slew
         # ---- objective: smoothness, reference smoothness, tail energy (k >= nmax), epigraph
@@ -245,8 +264,8 @@ class SeekQP:
             self._P2[q, q] = (w * E1q.T) @ E1q
             self._q2[q] = (w * E1q.T) @ e1
         self._dm_cache = None      # casadi copies of the full matrices, made on first full solve
-        self._mat_K, self._mat = None, None      # (H, A) of the last |K| (matrices())
-        self._abs_A = None                       # |A| of the last |K| (violation())
+        self._H_K, self._H = None, None          # H of the last |K| (hessian())
+        self._mat_K, self._mat = None, None      # (H, A) written out, of the last |K| (matrices())
         self._make_solver, self._solver = solver, None
         # row masks of bounds() (computed once)
         self._pes = np.isin(self.kind, ("pes", "pes_hi", "pes_lo")) & np.isin(self.plant_idx, list(self.band_plants))
@@ -264,7 +283,9 @@ class SeekQP:
     @property
     def _dm(self) -> dict:
         if self._dm_cache is None:
-            self._dm_cache = {k: dm(v) for k, v in (("A0", self.A0), ("A1", self.A1), ("P0", self._P0),
+            r = self.rows
+            A0, A1 = SeekRows.expand(r.A0, r.A1, r.D0, r.D1, r.p, r.d, r.s)
+            self._dm_cache = {k: dm(v) for k, v in (("A0", A0), ("A1", A1), ("P0", self._P0),
                                                     ("P1", self._P1), ("P2", self._P2))}
         return self._dm_cache
 
@@ -283,14 +304,26 @@ class SeekQP:
         A = self._dm["A0"] + aK * self._dm["A1"]
         return H, g, A, lba, uba, lbx, ubx
 
+    def hessian(self, K: float) -> np.ndarray:
+        """``H`` of a seek of ``K`` tracks (the last ``K``'s is kept)."""
+        aK = abs(K)
+        if self._H_K != aK:
+            self._H, self._H_K = self._P0 + aK * self._P1 + aK * aK * self._P2, aK
+        return self._H
+
+    def row_operator(self, K: float) -> SeekRows:
+        """The rows ``A(K)`` as an operator (:class:`~seekopt.design.qp_rows.SeekRows`: products and row
+        subsets without writing the derived rows out; the last ``K``'s are kept)."""
+        return self.rows.at(abs(K))
+
     def matrices(self, K: float):
-        """``(H, A)`` of a seek of ``K`` tracks as numpy arrays (the last ``K``'s are kept: a bisection
-        solves many lengths of one seek).  Solvers read them through zero-copy buffers
-        (:meth:`seekopt.design.solvers.ConicQP.solve`)."""
+        """``(H, A)`` of a seek of ``K`` tracks as numpy arrays, every row written out (the last ``K``'s are
+        kept): the QP on every row.  Solvers read them through zero-copy buffers
+        (:meth:`seekopt.design.solvers.ConicQP.solve`); the working set reads :meth:`row_operator`."""
         aK = abs(K)
         if self._mat_K != aK:
-            self._mat = (self._P0 + aK * self._P1 + aK * aK * self._P2, self.A0 + aK * self.A1)
-            self._mat_K, self._abs_A = aK, None
+            self._mat = (self.hessian(K), self.row_operator(K).dense())
+            self._mat_K = aK
         return self._mat
 
     def numeric(self, K: float, nseek: int, beta: float | None, gamma: float, hf_tol: float | None,
@@ -346,13 +379,13 @@ class SeekQP:
     def violation(self, x: np.ndarray, K: float, lba, uba, lbx, ubx, A=None) -> float:
         """Largest constraint violation of ``x`` relative to the size of the terms summed in each
         row (``max(1, sum_j |a_ij x_j|)``: the cancellation level) -- re-checks a solver's answer.
-        ``A``: the constraint matrix at ``K`` when already at hand."""
-        if A is None or (self._mat_K == abs(K) and A is self._mat[1]):
-            A = self.matrices(K)[1]         # the kept matrix and its |A| (one copy per seek length)
-            if self._abs_A is None:
-                self._abs_A = np.abs(A)
-            return constraint_violation(A, x, lba, uba, lbx, ubx, abs_A=self._abs_A)
-        return constraint_violation(A, x, lba, uba, lbx, ubx)
+        ``A``: an explicit constraint matrix to check against instead of the structure's rows at ``K``."""
+        if A is not None and not isinstance(A, SeekRows):
+            return constraint_violation(A, x, lba, uba, lbx, ubx)
+        if not np.all(np.isfinite(x)):
+            return float("inf")
+        op = self.row_operator(K)
+        return violation_of(op.matvec(x), op.abs_matvec(np.abs(x)), x, lba, uba, lbx, ubx)
 
     def unpack(self, x: np.ndarray, K: float, nseek: int):
         """``(u_ff [A], r [track, relative] or None)`` over the ``nseek + input_tail`` input samples."""
@@ -363,11 +396,12 @@ class SeekQP:
 
     def residual(self, x: np.ndarray, K: float, nseek: int, plants=None) -> float:
         """Worst ``|PES| / band`` over the band rows ``k >= nseek`` of ``plants`` (default all)."""
-        aK = abs(K)
-        e = self.A0 @ x + aK * (self.A1 @ x) + self.c0 + K * self.c1
-        sel = np.isin(self.kind, ("pes", "pes_hi")) & (self.sample >= nseek)
+        mb = self.rows.m_b                 # band rows are explicit rows
+        e = self.A0 @ x + abs(K) * (self.A1 @ x) + self.c0[:mb] + K * self.c1[:mb]
+        kind, sample = self.kind[:mb], self.sample[:mb]
+        sel = np.isin(kind, ("pes", "pes_hi")) & (sample >= nseek)
         if plants is not None:
-            sel &= np.isin(self.plant_idx, list(plants))
+            sel &= np.isin(self.plant_idx[:mb], list(plants))
         if self.epigraph:
-            e = e - x[-1] * np.where(self.kind == "pes_hi", -1.0, 0.0)
+            e = e - x[-1] * np.where(kind == "pes_hi", -1.0, 0.0)
         return float(np.max(np.abs(e[sel]))) if np.any(sel) else 0.0

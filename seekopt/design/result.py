@@ -38,7 +38,9 @@ class DesignResult:
     the QPs no solver decided (skipped).  ``settle_samples`` is the sample the nominal plant's band
     holds from, ``set_settle_samples`` the one every other plant of the set holds it from (the seek's
     length; later than ``settle_samples`` when the lexicographic design,
-    :attr:`SeekProblem.nominal_first`, let the nominal plant settle first).
+    :attr:`SeekProblem.nominal_first`, let the nominal plant settle first); ``set_min_settle_samples``
+    the set's minimum (the first stage's), earlier than ``set_settle_samples`` by the worst-case slack the
+    design spent for the nominal plant (:attr:`SeekProblem.worst_case_slack_s`).
     """
 
     profile: Profile
@@ -58,10 +60,13 @@ class DesignResult:
     prediction: SetPrediction | None = None
     guard: GuardReport | None = None
     set_settle_samples: int = 0
+    set_min_settle_samples: int = 0
 
     def __post_init__(self):
         if not self.set_settle_samples:
             self.set_settle_samples = self.settle_samples
+        if not self.set_min_settle_samples:
+            self.set_min_settle_samples = self.set_settle_samples
 
 
 class SolveStats:

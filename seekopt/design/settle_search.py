@@ -86,6 +86,12 @@ class SettleSearch:
         case over the set is no later than the first stage's, the nominal plant no later; the same margins,
         guard and currents.  Returns the verified design, or None (nothing earlier: keep the first stage's).
 
+        With :attr:`SeekProblem.worst_case_slack_s` (``s`` samples, :meth:`SeekProblem.worst_case_slack_samples`)
+        the set may settle up to ``s`` samples after its minimum: ``n0`` is searched with the set's band
+        rows from ``N + s`` (the seek that long; a bigger size class when ``N + s`` exceeds this one, cold
+        started), then, holding ``n0``, the set's length is brought back to the shortest in ``[N, N + s]``
+        that keeps it (:meth:`_set_length`): slack that buys the nominal plant nothing is not spent.
+
         Every probe here is a search step (``confirm=False``): a working set's unproven "infeasible" ends
         the refinement without the re-check and certificate a length the set's ``N`` rests on gets
         (10-250 ms each, a third of a robust design's CPU).  Nothing is declared infeasible from it:
@@ -94,10 +100,17 @@ class SettleSearch:
         every such verdict the confirmation re-checked was proven infeasible)."""
         if len(self.plants) < 2 or not self.problem.nominal_first or N - 1 <= lo:
             return None
+        n_top = min(N + self.problem.worst_case_slack_samples(), self.max_samples)
+        warm = best.x
+        if n_top > qp.N:       # the set's rows from N + slack: a structure whose seeks are that long
+            qp, warm = self._structure(self._classes(n_top)[0], False), None
+
+        def solve(n_set, n0, warm=None):
+            return self._solve(qp, K, n_set, self.beta, stats, warm=warm, confirm=False, nominal_from=n0)
 
         def probe(n0, warm=None, _confirm=None):     # the search's protocol; never confirmed here (above)
-            return self._solve(qp, K, N, self.beta, stats, warm=warm, confirm=False, nominal_from=n0)
-        s = probe(N - 1, best.x)
+            return solve(n_top, n0, warm)
+        s = probe(N - 1, warm)
         if not s.success:
             return None
         hi, best, step, low = N - 1, s, 1, lo         # gallop down (1, 2, 4, ...), then bisect
@@ -108,14 +121,24 @@ class SettleSearch:
                 break
             hi, best, step = hi - step, t, 2 * step
         n0, best = bisect_length(probe, low, hi, best, lambda n: False, floor=lo)
+        n_set, best = self._set_length(solve, N, n_top, n0, best)
         for n in range(n0, N):            # the simulator decides; step up on failure
             if n != n0:
-                best = probe(n, best.x)
+                best = solve(n_set, n, best.x)
                 if not best.success:
                     continue
             try:
-                return self._finish(qp, best, K, N, stats, f"min_settle/{self.objective_kind}/nominal_first",
-                                    strict=True, settle_n=n)
+                return self._finish(qp, best, K, n_set, stats, f"min_settle/{self.objective_kind}/nominal_first",
+                                    strict=True, settle_n=n, set_min=N)
             except DesignError:
                 continue
         return None
+
+    @staticmethod
+    def _set_length(solve, N, n_top, n0, best):
+        """``(n_set, answer)``: the shortest set length in ``[N, n_top]`` whose QP holds the nominal plant's
+        band from ``n0`` (``n_top`` does, with answer ``best``; bisection: a longer seek can always wait)."""
+        if n_top <= N:
+            return n_top, best
+        return bisect_length(lambda m, warm=None, _c=None: solve(m, n0, warm), N - 1, n_top, best,
+                             lambda n: False, floor=N - 1)

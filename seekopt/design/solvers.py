@@ -39,7 +39,7 @@ from seekopt.design.qp_status import (DAQP_PKG, DAQP_PROX, QPSolution, QPStatus,
 
 __all__ = ["QPStatus", "classify_status", "QPSolution", "ConicQP", "DaqpQP", "IpoptQP", "make_qp_solver",
            "SolverChain", "QP_PLUGINS", "DAQP_PKG", "DAQP_PROX", "QP_SOLVERS", "dm", "kkt_holds", "proves_infeasible", "farkas_certificate",
-           "constraint_violation"]
+           "constraint_violation", "violation_of"]
 
 #: ``casadi.conic`` plugins the designer accepts.
 QP_PLUGINS = ("daqp", "qpoases", "highs", "osqp", "proxqp", "qrqp")
@@ -213,8 +213,13 @@ def constraint_violation(A: np.ndarray, x: np.ndarray, lba, uba, lbx, ubx, abs_A
     ``abs_A``: ``|A|`` when the caller keeps it (checks of many answers on one matrix)."""
     if not np.all(np.isfinite(x)):
         return float("inf")
-    ax = A @ x
-    scale = np.maximum(1.0, (np.abs(A) if abs_A is None else abs_A) @ np.abs(x))
+    return violation_of(A @ x, (np.abs(A) if abs_A is None else abs_A) @ np.abs(x), x, lba, uba, lbx, ubx)
+
+
+def violation_of(ax, size, x, lba, uba, lbx, ubx) -> float:
+    """:func:`constraint_violation` from the row products ``ax = A x`` and their term sizes
+    ``size = |A| |x|`` (formed by the caller, e.g. :class:`seekopt.design.qp_rows.SeekRows`)."""
+    scale = np.maximum(1.0, size)
     v = np.concatenate([(lba - ax) / scale, (ax - uba) / scale, lbx - x, x - ubx])
     v = v[np.isfinite(v)]
     return float(max(np.max(v), 0.0)) if v.size else 0.0

@@ -23,21 +23,26 @@ from seekopt.design.result import DesignError, DesignResult, SolveStats
 __all__ = ["verified_design", "played_design", "packaged_design", "PlayedDesign"]
 
 
-def verified_design(self, qp, sol, K, N, stats: SolveStats, objective, strict, settle_n=None) -> DesignResult:
+def verified_design(self, qp, sol, K, N, stats: SolveStats, objective, strict, settle_n=None,
+                    set_min=None) -> DesignResult:
     """Verify and package the design whose set holds the band from sample ``N`` on (its inputs are
     ``N`` plus the structure's ``input_tail`` samples long); ``settle_n`` (default ``N``): the sample the
-    nominal plant's band holds from (:meth:`_nominal_first`), checked by the simulator when ``strict``:
+    nominal plant's band holds from (:meth:`_nominal_first`), checked by the simulator when ``strict``;
+    ``set_min`` (default ``N``): the set's minimum seek-settle sample, earlier than ``N`` when
+    :attr:`SeekProblem.worst_case_slack_s` let the set settle later for the nominal plant's sake:
     :func:`played_design` then :func:`packaged_design`."""
-    return packaged_design(self, played_design(self, qp, sol, K, N, objective, strict, settle_n), stats)
+    return packaged_design(self, played_design(self, qp, sol, K, N, objective, strict, settle_n, set_min), stats)
 
 
-def played_design(self, qp, sol, K, N, objective, strict, settle_n=None) -> "PlayedDesign":
+def played_design(self, qp, sol, K, N, objective, strict, settle_n=None, set_min=None) -> "PlayedDesign":
     """The check half of :func:`verified_design`: the profile played once by the one simulator on the
     design plant, within Imax and (``strict``) settled by its sample, else :class:`DesignError`.  What
     :func:`packaged_design` adds (the set's predictions, the guard report) decides nothing: a first
     stage that a nominal-first design replaces is checked, never packaged."""
     n_set = N
     N = N if settle_n is None else int(settle_n)
+    set_min = n_set if set_min is None else int(set_min)
+    slack = self.problem.worst_case_slack_s
     u, r = qp.unpack(sol.x, K, n_set)
     u = exact_rest(u, K, self.plant.k0, self.fs, self.imax)
     if u is None:
@@ -47,7 +52,8 @@ def played_design(self, qp, sol, K, N, objective, strict, settle_n=None) -> "Pla
             "design_objective": objective, "solver": self.solver_name, "reference": self.reference,
             "robust": self.robust.to_string() if self.robust else "none",
             "band_margin": self.beta, "current_margin": self.gamma, "design_settle_samples": N,
-            **({"design_set_settle_samples": n_set} if n_set != N else {})}
+            **({"design_set_settle_samples": n_set} if n_set != N else {}),
+            **({"worst_case_slack_s": slack, "design_set_min_settle_samples": set_min} if slack > 0 else {})}
     if self.ignored_effects:
         meta["effects_not_in_design"] = ";".join(self.ignored_effects)
     if r is not None:   # jointly designed reference; one closing sample shows the hold (u = 0, r = K)
@@ -61,7 +67,7 @@ def played_design(self, qp, sol, K, N, objective, strict, settle_n=None) -> "Pla
         raise DesignError(f"design exceeds Imax in simulation ({metrics.peak_current_a:.4g} A)")
     if strict and not metrics.settle_time_s * self.fs <= N + 1 + 1e-9:
         raise DesignError(f"design does not settle by sample {N} in simulation")
-    return PlayedDesign(qp, sol, K, N, n_set, objective, prof, metrics, sim)
+    return PlayedDesign(qp, sol, K, N, n_set, objective, prof, metrics, sim, set_min)
 
 
 def _play(self, prof: Profile):
@@ -86,7 +92,8 @@ def _play(self, prof: Profile):
 class PlayedDesign:
     """A design that passed the simulator check (:func:`played_design`): the QP structure and answer,
     the seek ``K`` [track], the nominal plant's settle sample ``N`` and the set's ``n_set``, the
-    profile, its metrics and the play (:class:`seekopt.drive.simulator.SimResult`)."""
+    profile, its metrics and the play (:class:`seekopt.drive.simulator.SimResult`), the set's minimum
+    settle sample ``set_min`` (``n_set`` less the worst-case slack spent)."""
     qp: object
     sol: object
     K: float
@@ -96,6 +103,7 @@ class PlayedDesign:
     prof: Profile
     metrics: object
     sim: object
+    set_min: int = 0
 
 
 def packaged_design(self, d: PlayedDesign, stats: SolveStats) -> DesignResult:
@@ -127,4 +135,5 @@ def packaged_design(self, d: PlayedDesign, stats: SolveStats) -> DesignResult:
                         qp_status=stats.status,
                         build_time_s=sum(q.build_time_s for q in self._qps.values()),
                         fallback_solves=stats.fallback, unresolved_solves=len(stats.unresolved),
-                        prediction=pred, guard=guard, set_settle_samples=n_set)
+                        prediction=pred, guard=guard, set_settle_samples=n_set,
+                        set_min_settle_samples=d.set_min or n_set)

@@ -70,16 +70,23 @@ def designer_factory(spec: str, family=None, drift: str | None = None, long_seek
     designs are :class:`~seekopt.design.longseek.LongSeekDesigner` of :func:`designer_problem` (``family``,
     ``drift`` and the problem ``options``): the dispatch of ``seekopt design`` (rest-to-rest QP for short
     seeks, the acceleration step for long ones, the plant's velocity limit and stroke from its metadata);
+    with ``LongSeekSpec.compare_below_long`` (the composition below ``long_from_track`` where it settles
+    within 1.15x the rest-to-rest prediction: a sweep's designer serves many lengths);
     ``long_seeks=False``: the rest-to-rest :class:`~seekopt.design.designer.SeekDesigner` at every length
     (the export's anchors; its long-seek classes are built apart).  ``baseline`` and ``module:attr``
     designers take no options."""
     if spec in OCP_SPECS:
         from seekopt.design.designer import SeekDesigner
-        from seekopt.design.longseek import LongSeekDesigner
+        from seekopt.design.longseek import LongSeekDesigner, LongSeekSpec
 
         def build(plant, controller, imax, settle):
             short = SeekDesigner(designer_problem(spec, plant, controller, imax, settle, family, drift, **options))
-            return LongSeekDesigner(short.problem, short_designer=short) if long_seeks else short
+            if not long_seeks:
+                return short
+            # one warm designer serves every length of a TPI: the composition below long_from_track
+            # when it settles within 1.15x the rest-to-rest prediction (LongSeekSpec.compare_below_long)
+            ls_spec = LongSeekSpec.from_plant(plant, imax, compare_below_long=True)
+            return LongSeekDesigner(short.problem, ls_spec, short_designer=short)
         return build
     if spec == "baseline":
         return BaselineDesigner
@@ -149,7 +156,9 @@ class CellRunner:
         """The warm designer of ``(configuration, tpi)`` (built on first use)."""
         held = self._objects(cfgd, tpi)
         if held["designer"] is None:
-            held["designer"] = designer_factory(cfgd["designer"], held["family"], cfgd.get("drift"))(
+            slack = float(cfgd.get("worst_case_slack_s", 0.0))
+            held["designer"] = designer_factory(cfgd["designer"], held["family"], cfgd.get("drift"),
+                                                **({"worst_case_slack_s": slack} if slack else {}))(
                 held["plant"], held["ctrl"], float(cfgd["imax"]), float(cfgd["settle"]))
             self.designers_built += 1
         return held["designer"]

@@ -144,6 +144,9 @@ class SweepConfig:
     drift : str or None
         Drift of the ``ocp-robust`` designer in physical terms (:meth:`seekopt.design.family.Drift.from_string`;
         None: from the data).
+    worst_case_slack_s : float
+        The ``ocp`` designers' :attr:`seekopt.design.problem.SeekProblem.worst_case_slack_s` [s] (0: the set's
+        minimum; ``seekopt sweep --worst-case-slack``).
     """
 
     plant: ModalPlant
@@ -158,6 +161,7 @@ class SweepConfig:
     scale_controller: bool = True
     family: list = field(default_factory=list)
     drift: str | None = None
+    worst_case_slack_s: float = 0.0
 
     def __post_init__(self):
         if self.plant.track_pitch_nm is None:
@@ -171,6 +175,9 @@ class SweepConfig:
         self.family = list(self.family or [])
         if any(p.track_pitch_nm is None for p in self.family):
             raise SweepError("a family member has no track_pitch_nm; a TPI sweep needs the physical gain")
+        self.worst_case_slack_s = float(self.worst_case_slack_s or 0.0)
+        if not (math.isfinite(self.worst_case_slack_s) and self.worst_case_slack_s >= 0):
+            raise SweepError(f"worst-case slack must be a time >= 0 s (got {self.worst_case_slack_s!r})")
         if self.drift:
             from seekopt.design.family import Drift, DriftError
             try:
@@ -188,6 +195,8 @@ class SweepConfig:
             d["family"] = [p.to_dict() for p in self.family]
         if self.drift:
             d["drift"] = self.drift
+        if self.worst_case_slack_s:  # only when used: sweeps without it keep their hash
+            d["worst_case_slack_s"] = self.worst_case_slack_s
         return d
 
     def hash(self) -> str:
@@ -209,7 +218,8 @@ class SweepConfig:
         return cls(ModalPlant.from_dict(d["plant"]), Controller.from_json(d["controller"]),
                    d["tpis"], d["tracks"], d["imax"], d["settle"], d["designer"],
                    tuple(d["kinds"]), d.get("horizon_s"), d.get("scale_controller", True),
-                   [ModalPlant.from_dict(p) for p in d.get("family", [])], d.get("drift"))
+                   [ModalPlant.from_dict(p) for p in d.get("family", [])], d.get("drift"),
+                   d.get("worst_case_slack_s", 0.0))
 
     def cells(self) -> list[tuple[float, float]]:
         """Cells in submission order: by TPI (designer reuse), longest seeks first (balance)."""

@@ -84,29 +84,31 @@ def sweep_stroke_mm(results_dir, stroke_mm=None, vmax_mps=None, sweep=None):
     return resolve_physical(cfg.plant, cfg.imax, stroke_mm, vmax_mps)[0]
 
 
-def export_designer(spec: str, plant, controller, imax: float, settle: float, family=(), drift: str | None = None):
+def export_designer(spec: str, plant, controller, imax: float, settle: float, family=(), drift: str | None = None,
+                    **options):
     """The anchor designer for a sweep's designer ``spec``: the sweep's own
     (:func:`seekopt.evaluate.sweep_cell.designer_factory`: the same robust set, ``drift`` and ``family``
-    members at the plant's TPI), the ``ocp`` ones with the export's current margin (module notes)."""
+    members at the plant's TPI, the sweep's problem ``options`` such as its worst-case slack), the ``ocp``
+    ones with the export's current margin (module notes)."""
     from seekopt.evaluate.sweep_cell import OCP_SPECS, designer_factory
     if spec not in OCP_SPECS:
         return designer_factory(spec)(plant, controller, imax, settle)
     margin = 0.97 - 2 * abs(plant.bias_a) / imax
     if margin <= 0.5:
         raise ExportError(f"bias {plant.bias_a:g} A is too large for Imax {imax:g} A")
-    return designer_factory(spec, family, drift, long_seeks=False, current_margin=margin)(plant, controller, imax,
-                                                                                          settle)
+    return designer_factory(spec, family, drift, long_seeks=False, current_margin=margin, **options)(
+        plant, controller, imax, settle)
 
 
 def export_longseek(spec: str, plant, controller, imax: float, settle: float, long_spec, family=(),
-                    drift: str | None = None):
+                    drift: str | None = None, **options):
     """The long-seek designer (:class:`seekopt.design.longseek.LongSeekDesigner`) of a sweep's designer
     ``spec``: the ``ocp`` ones on the sweep's problem (:func:`seekopt.evaluate.sweep_cell.designer_problem`:
     the same robust set and family as the anchors; the velocity steps bound their current with the hold
     themselves), any other designer on the nominal plant."""
     from seekopt.design.longseek import LongSeekDesigner
     from seekopt.evaluate.sweep_cell import designer_problem
-    problem = designer_problem(spec, plant, controller, imax, settle, family, drift)
+    problem = designer_problem(spec, plant, controller, imax, settle, family, drift, **options)
     if problem is None:
         return LongSeekDesigner(plant, controller, imax, settle, None, long_spec)
     return LongSeekDesigner(problem, long_spec)
@@ -147,15 +149,17 @@ def build_rule(results_dir, *, stroke_mm=None, vmax_mps=None, budget_kib: float 
     except RuleError as exc:
         raise ExportError(str(exc)) from None
     sets, peaks = [], {}
+    slack = {"worst_case_slack_s": cfg.worst_case_slack_s} if cfg.worst_case_slack_s else {}   # the sweep's
     for t in tpis:
         plant = plants[t]
         ctrl = controller_at_tpi(cfg.controller, cfg.plant, t) if cfg.scale_controller else cfg.controller
         family = [m.at_tpi(t) for m in cfg.family]         # as the sweep's cells hold them
         vmax = None if vmax_mps is None else vmax_mps / (plant.track_pitch_nm * 1e-9)
         ls = export_longseek(cfg.designer, plant, ctrl, cfg.imax, cfg.settle,
-                             LongSeekSpec(vmax_track_s=vmax, stroke_track=strokes[t]), family, cfg.drift)
+                             LongSeekSpec(vmax_track_s=vmax, stroke_track=strokes[t]), family, cfg.drift, **slack)
         with tqdm(desc=f"export {t:g} TPI", unit="design", file=sys.stderr, disable=not progress) as bar:
-            ad = AnchorDesigner(export_designer(cfg.designer, plant, ctrl, cfg.imax, cfg.settle, family, cfg.drift),
+            ad = AnchorDesigner(export_designer(cfg.designer, plant, ctrl, cfg.imax, cfg.settle, family, cfg.drift,
+                                                **slack),
                                 plant, ctrl, cfg.settle, progress=bar)
             try:
                 s = build_seek_set(ad, ls, strokes[t], F, cfg.imax, tpi=int(round(t)), settings=st)

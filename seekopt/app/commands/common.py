@@ -16,7 +16,8 @@ import threading
 import time
 from pathlib import Path
 
-__all__ = ["UsageError", "input_errors", "message", "warn", "progress", "check_positive", "check_seek_args",
+__all__ = ["UsageError", "input_errors", "message", "warn", "progress", "check_positive", "parse_duration",
+           "check_seek_args",
            "check_output_file", "check_output_dir", "LOG_SUFFIXES", "DEFAULT_CONTROLLER", "PROGRESS_AFTER_S"]
 
 DEFAULT_CONTROLLER = ("the IEEJ NSS benchmark's PID + 4 notches at 26400 Hz (notches at twice the PES rate; "
@@ -142,6 +143,20 @@ def check_positive(value: float, option: str) -> float:
     if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
         raise UsageError(f"{option} must be a positive number (got {value})")
     return value
+
+
+_TIME_UNITS_S = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "ns": 1e-9}
+
+
+def parse_duration(text, option: str) -> float:
+    """A duration >= 0 given on the command line (``0.04ms``, ``40us``, ``4e-5``: s without a unit) -> s;
+    else a :class:`UsageError` naming ``option``."""
+    import re
+    m = re.fullmatch(r"\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*(s|ms|us|µs|ns)?\s*", str(text))
+    v = float(m.group(1)) * _TIME_UNITS_S[m.group(2) or "s"] if m else float("nan")
+    if not math.isfinite(v):
+        raise UsageError(f"{option} must be a time >= 0 such as 0.04ms, 40us or 4e-5 (s) (got {text!r})")
+    return v
 
 
 def check_seek_args(args) -> None:

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import sys
 
-from seekopt.app.commands.common import UsageError, check_output_file, check_positive, check_seek_args, progress
+from seekopt.app.commands.common import (UsageError, check_output_file, check_positive, check_seek_args,
+                                         parse_duration, progress)
 from seekopt.app.commands.inputs import plant_family, robust_choice
 
 __all__ = ["cmd_design", "first_path"]
@@ -18,11 +19,19 @@ def first_path(paths) -> str:
 def _print_predictions(res, names) -> None:
     """Predicted seek-settle times (nominal, each family member, worst over the set) and the guard."""
     pred, g = res.prediction, res.guard
+    spent = res.set_settle_samples - res.set_min_settle_samples
+    if spent:
+        print(f"  worst-case slack: the set settles by sample {res.set_settle_samples} instead of its minimum "
+              f"{res.set_min_settle_samples} ({spent} sample(s) spent), the design plant by "
+              f"{res.settle_samples}")
     if pred is not None:
         ms = lambda m: f"{m.settle_time_s * 1e3:.3f} ms ({m.ratio_tbb:.2f} T_bb)"     # noqa: E731
-        for lab, m in pred.members():
+        shown = set()
+        for lab, m in pred.members():      # the member itself comes first, its per-mode corners after it
             i = 0 if lab == "nominal" else int(lab.split()[1].rstrip(":"))
-            print(f"  predicted on {names[i] if i < len(names) else lab}: {ms(m)}")
+            if i not in shown:
+                shown.add(i)
+                print(f"  predicted on {names[i] if i < len(names) else lab}: {ms(m)}")
         print(f"  predicted worst over the {len(pred.labels)}-plant set: {ms(pred.worst_metrics)} on "
               f"'{pred.labels[pred.worst]}'; binding plant: '{pred.labels[pred.binding]}'")
     if g is not None:
@@ -43,6 +52,7 @@ def cmd_design(args) -> int:
     from seekopt.design.problem import ProblemError, SeekProblem
     check_output_file(args.output, "-o", (".csv",))
     check_seek_args(args)
+    slack = parse_duration(args.worst_case_slack, "--worst-case-slack")
     plant, family, controller, names = plant_family(args.plant, args.controller)
     robust = robust_choice(args, plant)
     from seekopt.design.feasibility import StartError, resolve_start
@@ -65,7 +75,8 @@ def cmd_design(args) -> int:
     if spec.stroke_track is not None and abs(args.tracks) > spec.stroke_track:
         raise UsageError(f"--tracks {args.tracks:g} is longer than the stroke ({spec.stroke_track:g} tracks)")
     try:
-        designer = SeekDesigner(SeekProblem(plant, controller, args.imax, args.settle, robust=robust, family=family))
+        designer = SeekDesigner(SeekProblem(plant, controller, args.imax, args.settle, robust=robust, family=family,
+                                               worst_case_slack_s=slack))
         # long seeks (with or without --vmax) are accelerate-coast-arrive, shorter ones rest-to-rest QPs
         # (the dispatch rule of seekopt.design.longseek)
         designer = LongSeekDesigner(designer.problem, spec, short_designer=designer)

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import sys
 
-from seekopt.app.commands.common import UsageError, check_output_dir, check_positive
+from seekopt.app.commands.common import UsageError, check_output_dir, check_positive, parse_duration
 from seekopt.app.commands.inputs import plant_family
 
 __all__ = ["cmd_sweep"]
@@ -16,11 +16,13 @@ def cmd_sweep(args) -> int:
     check_output_dir(args.output, "-o")
     check_positive(args.imax, "--imax [A]")
     check_positive(args.settle, "--settle [track]")
+    slack = parse_duration(args.worst_case_slack, "--worst-case-slack")
     if args.workers is not None and args.workers < 1:
         raise UsageError(f"--workers must be at least 1 (got {args.workers})")
     plant, family, controller, _ = plant_family(args.plant, args.controller)
     cfg = SweepConfig(plant, controller, parse_tpi(args.tpi), parse_tracks(args.tracks), args.imax, args.settle,
-                      designer=args.designer, family=family, drift=",".join(args.drift) or None)
+                      designer=args.designer, family=family, drift=",".join(args.drift) or None,
+                      worst_case_slack_s=slack)
     s = run_sweep(cfg, args.output, engine=args.dask or "process", workers=args.workers,
                   progress=not args.quiet, figures=not args.no_figures)
     others = f", {s.by_others} by another sweep" if s.by_others else ""

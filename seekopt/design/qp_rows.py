@@ -1,0 +1,118 @@
+"""The constraint rows of a seek QP (:class:`seekopt.design.qp.SeekQP`) as an operator: explicit rows plus
+*derived* rows that are a signed sum of an explicit row and one of a few shared rows, never stored.
+
+The blind-band rows (:mod:`seekopt.design.blind_pes`) are ``e_i(k) +- d_f(k)``: a band plant's PES row
+plus or minus the PES a hypothetical mode at ``f`` adds, for every band plant ``i``, grid frequency ``f``
+and sign -- 10 derived rows per band row with 5 grid points.  Stored whole they were 54 000 of a robust
+structure's 66 000 rows (``(66 000, 208)``: 110 MB per matrix; each seek length's ``A(K)``, its ``|A|``
+and every full product read it all).  Here each is the pair (explicit row ``p``, shared row ``d``,
+sign ``s``)::
+
+    A[m_b + j] = A[p_j] + s_j D[d_j]          (m_b explicit rows first, derived rows after)
+
+with ``A = A0 + |K| A1`` and ``D = D0 + |K| D1`` (the seek QP's ``K``-scaling); the products are formed
+from the explicit rows' and the shared rows' products (the same sums, in the same order, as the stored
+rows gave).  Units: the seek QP's scaled rows (bands, ``Imax``).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["SeekRows"]
+
+
+class SeekRows:
+    """Rows ``A(K)`` of a seek QP: ``m_b`` explicit rows ``A0 + |K| A1`` and derived rows
+    ``A[p] + s (D0 + |K| D1)[d]`` (module docstring).
+
+    Parameters
+    ----------
+    A0, A1 : (m_b, n) ndarray
+        Explicit rows (``A1``: the part scaled by ``|K|``).
+    D0, D1 : (m_d, n) ndarray or None
+        Shared rows of the derived rows.
+    p, d : (m_v,) int ndarray
+        Explicit row and shared row of each derived row.
+    s : (m_v,) ndarray
+        Sign of the shared row in each derived row (+-1).
+    """
+
+    def __init__(self, A0, A1, D0=None, D1=None, p=None, d=None, s=None):
+        self.A0, self.A1 = A0, A1
+        self.m_b, self.n = A0.shape
+        z = np.zeros(0, dtype=int)
+        self.p = z if p is None else np.asarray(p, dtype=int)
+        self.d = z if d is None else np.asarray(d, dtype=int)
+        self.s = np.zeros(0) if s is None else np.asarray(s, dtype=float)
+        self.D0 = np.zeros((0, self.n)) if D0 is None else D0
+        self.D1 = np.zeros((0, self.n)) if D1 is None else D1
+        self.m = self.m_b + self.p.size
+        # the columns each part lives on (A0: feedforward and epigraph, A1: reference): products read
+        # only those, and A(K) is never formed (a robust structure's explicit rows are 20 MB per part)
+        self._c0 = np.flatnonzero(np.any(A0 != 0, axis=0))
+        self._c1 = np.flatnonzero(np.any(A1 != 0, axis=0))
+        self._P0, self._P1 = A0[:, self._c0], A1[:, self._c1]
+        self._aK = 0.0
+        self._Dk = self.D0
+        self._abs = None
+
+    def at(self, aK: float) -> "SeekRows":
+        """Fix ``|K|`` (kept until the next call with another ``|K|``)."""
+        aK = float(aK)
+        if self._aK != aK:
+            self._aK = aK
+            self._Dk = self.D0 + aK * self.D1
+        return self
+
+    def _base(self, x: np.ndarray) -> np.ndarray:
+        return self._P0 @ x[self._c0] + self._aK * (self._P1 @ x[self._c1])
+
+    def matvec(self, x: np.ndarray) -> np.ndarray:
+        """``A x`` over all ``m`` rows."""
+        b = self._base(x)
+        if not self.p.size:
+            return b
+        return np.concatenate([b, b[self.p] + self.s * (self._Dk @ x)[self.d]])
+
+    def abs_matvec(self, ax: np.ndarray) -> np.ndarray:
+        """``|A| ax`` for ``ax >= 0``, each row's ``|A0 + |K| A1|`` taken as ``|A0| + |K| |A1|`` (exact where
+        the parts have no column in common, as in the seek QP) and a derived row's ``|A[p] + s D[d]|`` as
+        ``|A[p]| + |D[d]|``: the size of the terms its product sums (the cancellation level of a re-check)."""
+        if self._abs is None:
+            self._abs = (np.abs(self._P0), np.abs(self._P1), np.abs(self.D0), np.abs(self.D1))
+        a0, a1, d0, d1 = self._abs
+        b = a0 @ ax[self._c0] + self._aK * (a1 @ ax[self._c1])
+        if not self.p.size:
+            return b
+        return np.concatenate([b, b[self.p] + (d0 @ ax + self._aK * (d1 @ ax))[self.d]])
+
+    def _rows(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """Explicit rows ``rows`` (< ``m_b``) of ``A0 + |K| A1`` on columns ``cols`` (from the parts' own
+        columns: whole rows of contiguous arrays, then the columns)."""
+        out = np.zeros((rows.size, self.n))
+        out[:, self._c0] = self._P0[rows]
+        out[:, self._c1] += self._aK * self._P1[rows]
+        return out[:, cols]
+
+    def take(self, rows: np.ndarray, cols: np.ndarray | None = None) -> np.ndarray:
+        """The rows ``rows`` (and columns ``cols``) as an explicit array."""
+        rows = np.asarray(rows, dtype=int)
+        cols = np.arange(self.n) if cols is None else np.asarray(cols, dtype=int)
+        out = np.empty((rows.size, cols.size))
+        exp = rows < self.m_b
+        out[exp] = self._rows(rows[exp], cols)
+        if not np.all(exp):
+            j = rows[~exp] - self.m_b
+            out[~exp] = self._rows(self.p[j], cols) + self.s[j, None] * self._Dk[np.ix_(self.d[j], cols)]
+        return out
+
+    def dense(self) -> np.ndarray:
+        """``A(K)`` whole (``m`` rows; for a solve on every row, rarely needed)."""
+        return self.take(np.arange(self.m))
+
+    @staticmethod
+    def expand(A0, A1, D0, D1, p, d, s) -> tuple:
+        """``(A0, A1)`` of every row, derived rows written out (the ``K``-independent parts)."""
+        if not len(p):
+            return A0, A1
+        return (np.vstack([A0, A0[p] + s[:, None] * D0[d]]), np.vstack([A1, A1[p] + s[:, None] * D1[d]]))
