@@ -38,12 +38,12 @@ import numpy as np
 
 from seekopt.design.certificates import farkas_certificate, proves_infeasible  # noqa: F401
 from seekopt.design.daqp_solver import PROX_OPTIONS, DaqpQP, kkt_holds  # noqa: F401
-from seekopt.design.piqp_solver import PIQP, PiqpQP  # noqa: F401
+from seekopt.design.piqp_solver import PIQP, PiqpQP, piqp_available  # noqa: F401
 from seekopt.design.qp_status import (DAQP_PKG, DAQP_PROX, QPSolution, QPStatus, _nan_safe, _quiet_stdout,  # noqa: F401
                                       classify_status, dm)
 
 __all__ = ["QPStatus", "classify_status", "QPSolution", "ConicQP", "DaqpQP", "IpoptQP", "make_qp_solver",
-           "SolverChain", "QP_PLUGINS", "DAQP_PKG", "DAQP_PROX", "PIQP", "PiqpQP", "QP_SOLVERS", "dm", "kkt_holds", "proves_infeasible", "farkas_certificate",
+           "SolverChain", "QP_PLUGINS", "DAQP_PKG", "DAQP_PROX", "PIQP", "PiqpQP", "piqp_available", "QP_SOLVERS", "dm", "kkt_holds", "proves_infeasible", "farkas_certificate",
            "constraint_violation", "violation_of"]
 
 #: ``casadi.conic`` plugins the designer accepts.
