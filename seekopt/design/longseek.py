@@ -232,7 +232,7 @@ class LongSeekDesigner(StepDesigns, SeekBuild):
         """The composition's plan (:func:`~seekopt.design.accel_step.plan_seek`) under the dispatch rule
         (module notes, rule 2), or None: from :meth:`long_from_track` on any plan; below it, a plan whose
         predicted settle is within ``SETTLE_RATIO (T_bb + rest_to_rest_overhead() - OVERHEAD_SPREAD)``."""
-        lim = 0.5 * (1 + self.gamma) * self.imax - abs(self.plant.bias_a)
+        lim = self._composition_limit()
         st = self.accel_step()
         if abs(K) >= self.long_from_track():
             return plan_seek(st, K, self.n_floor(), self._n_vmax(), self.settle, current_limit_a=lim)
@@ -346,7 +346,7 @@ class LongSeekDesigner(StepDesigns, SeekBuild):
         ``n_floor`` samples at ``I0`` on), whatever the dispatch."""
         K = self.check_seek(tracks)
         t0, fresh = time.process_time(), self._accel is None
-        lim = 0.5 * (1 + self.gamma) * self.imax - abs(self.plant.bias_a)
+        lim = self._composition_limit()
         plan = plan_seek(self.accel_step(), K, self.n_floor(), self._n_vmax(), self.settle, current_limit_a=lim)
         if plan is None:
             raise LongSeekError(f"no acceleration-step plan settles the seek of {K:g} tracks on every plant")
