@@ -17,7 +17,10 @@ Rule (units: tracks, A, samples; ``e_i(k) = (y_i(k) - K) / band`` the PES of ban
 
 ``P`` the design plant's linear part, ``m_f`` a mode at ``f`` of the band's gain ``g`` (``hf_gain``) and
 damping :data:`BLIND_PES_ZETA`; ``y`` the closed-loop head position under the drive's controller (the one
-simulator, :func:`seekopt.drive.simulator.closed_loop_responses`), so ``d_f`` is the loop's
+simulator, :func:`seekopt.drive.simulator.closed_loop_responses`, for the loop without the mode; the loop
+with it follows exactly by superposition, :func:`add_output_path`, from the mode's own response in the
+engine's discretisation, :func:`mode_response`; equal to simulating the loops with the mode to 5e-13
+relative; 5 frequencies, 200-500 samples: 17-41 ms CPU against 78-155 ms), so ``d_f`` is the loop's
 sensitivity-filtered forced *and* free response to the mode, linear in the profile (``u_ff``, ``r``).  The
 half difference of the ``+g`` and ``-g`` loops is the part linear in ``g``; with ``+-d_f`` the rows hold for
 either sign of the mode and any smaller gain (linear in ``g``).  The mode's PES is taken from the design
@@ -53,7 +56,8 @@ import numpy as np
 from identification.model.plant import Mode
 from seekopt.drive.simulator import closed_loop_responses
 
-__all__ = ["BLIND_PES_ZETA", "ID_ERROR_ROLE", "blind_pes_freqs", "blind_pes_maps", "blind_pes_plants"]
+__all__ = ["BLIND_PES_ZETA", "ID_ERROR_ROLE", "blind_pes_freqs", "blind_pes_maps", "blind_pes_plants", "mode_response",
+           "add_output_path"]
 
 #: Damping ratio of the hypothetical mode: its half-power width ``2 zeta f`` (475-690 Hz over the NSS band)
 #: is about the grid's spacing at 5 points, so the rows hold between grid points (module docstring); the
@@ -87,7 +91,8 @@ def blind_pes_freqs(bands: list, points: int) -> tuple:
     return np.concatenate(f), np.concatenate(g)
 
 
-def blind_pes_maps(plant, controller, horizon: int, freqs_hz, gains, zeta: float = BLIND_PES_ZETA) -> list:
+def blind_pes_maps(plant, controller, horizon: int, freqs_hz, gains, zeta: float = BLIND_PES_ZETA,
+                   base: dict | None = None) -> list:
     """Impulse responses of the PES a mode at each frequency adds, ``[(dy_u, dy_r), ...]``.
 
     ``dy_u`` [track/A] and ``dy_r`` [track/track] (length ``horizon``) are half the difference of the
@@ -95,18 +100,23 @@ def blind_pes_maps(plant, controller, horizon: int, freqs_hz, gains, zeta: float
     design plant's linear part with the mode ``(f, zeta, +g)`` and ``(f, zeta, -g)`` added.  A sign whose
     loop is unstable is replaced by the difference from the plant without the mode; a frequency whose
     loops are both unstable is skipped (no design can hold it anyway; the residual guard still covers it).
+
+    The loops with the mode are not simulated: they follow exactly from the loop without it (``base``,
+    :func:`seekopt.drive.simulator.closed_loop_responses` of the linear part, computed when not given)
+    and the mode's own open-loop response (:func:`mode_response`), by :func:`add_output_path`.
     """
     lin = plant.linear_part().copy(meta={})     # a hypothetical plant (an identified one may not carry modes above Nyquist)
-    base = closed_loop_responses(lin, controller, int(horizon))
+    n = int(horizon)
+    if base is None:
+        base = closed_loop_responses(lin, controller, n)
+    base = {k: np.asarray(base[k])[:n] for k in ("y_uff", "y_r", "u_sub_uff", "u_sub_r")}
     out = []
     for f, g in zip(np.atleast_1d(freqs_hz), np.atleast_1d(gains)):
+        h = mode_response(lin, controller, Mode(float(f), float(zeta), float(g)), n)
         resp = {}
         for s in (1.0, -1.0):
-            p = lin.copy(modes=sorted(list(lin.modes) + [Mode(float(f), float(zeta), s * float(g))],
-                                      key=lambda m: m.freq_hz))
-            r = closed_loop_responses(p, controller, int(horizon))
-            d = (r["y_uff"] - base["y_uff"], r["y_r"] - base["y_r"])
-            if all(np.all(np.isfinite(a)) for a in d) and np.max(np.abs(r["y_r"][-10:])) < 1e3:
+            d = add_output_path(base, s * h)
+            if all(np.all(np.isfinite(a)) for a in d) and np.max(np.abs((base["y_r"] + d[1])[-10:])) < 1e3:
                 resp[s] = d
         if len(resp) == 2:
             out.append(tuple(0.5 * (a - b) for a, b in zip(resp[1.0], resp[-1.0])))
@@ -114,3 +124,50 @@ def blind_pes_maps(plant, controller, horizon: int, freqs_hz, gains, zeta: float
             (s, d), = resp.items()
             out.append(tuple(s * a for a in d))
     return out
+
+
+def mode_response(lin, controller, mode: Mode, n: int) -> np.ndarray:
+    """Open-loop response [track/A] of ``mode`` alone at the drive's sub-step rate, ``n`` servo samples
+    (``n L`` sub-steps) long: ``h[t]`` the mode's deflection ``t`` sub-steps after a unit current held
+    over sub-step 0, with the plant's delay and amplifier lag.  The engine's own linear system
+    (:meth:`identification.model.discrete.DiscretePlant.augmented_ss` of ``lin`` with ``mode`` as its
+    only declared mode) read at the mode's two states (the blocks of ``Phi`` are independent)."""
+    L = int(controller.fast_multiple)
+    dp = lin.copy(modes=[mode]).discretize(1.0 / (float(controller.sample_rate_hz) * L))
+    A, B, C, _ = dp.augmented_ss()
+    c = np.zeros(A.shape[0])
+    c[2:4] = C[0, 2:4]                          # the declared mode is the block after the rigid body
+    h = np.zeros(n * L)
+    x = B[:, 0].copy()
+    for t in range(1, n * L):                   # h[0] = 0: the output is read before the step
+        h[t] = c @ x
+        x = A @ x
+    return h
+
+
+def add_output_path(base: dict, h: np.ndarray) -> tuple:
+    """``(dy_u, dy_r)``: the change of the closed-loop position responses when an LTI path ``h`` (sub-step
+    rate, current to position, ``h[0] = 0``) is added to the plant of the loop ``base``.
+
+    Exact superposition: with ``d = h * u`` the added path's output, the drive's loop sees
+    ``y = P u + d``, so it runs as the loop without the path at the reference ``r - d``; ``d`` itself
+    is ``h`` on the currents of that loop.  Per unit impulse (``a`` the path's output under the base
+    loop's currents, ``a_r`` under its reference-impulse currents; ``*`` convolution at the servo rate)::
+
+        d = a - a_r * d          (solved sample by sample: a_r[0] = 0)
+        dy = d - y_r * d         (position: the path's output plus the loop's reaction to it)
+    """
+    y_r = base["y_r"]
+    n = len(y_r)
+    L = base["u_sub_r"].shape[1]
+
+    def path(u_sub):                            # the path's output at the servo instants, h on the currents
+        return np.convolve(h, np.asarray(u_sub).ravel())[:n * L:L]
+    a_u, a_r = path(base["u_sub_uff"]), path(base["u_sub_r"])
+    D = np.column_stack([a_u, a_r])             # d = a - a_r * d, forward substitution (a_r[0] = 0)
+    rev = a_r[::-1]                             # rev[n - 1 - j] = a_r[j]
+    with np.errstate(all="ignore"):
+        for k in range(1, n):
+            D[k] -= rev[n - 1 - k:n - 1] @ D[:k]      # sum_{q < k} a_r[k - q] d[q]
+        dy = [D[:, i] - np.convolve(y_r, D[:, i])[:n] for i in range(2)]
+    return dy[0], dy[1]

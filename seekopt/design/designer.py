@@ -39,7 +39,7 @@ from identification.model.plant import ModalPlant
 
 from seekopt.design import blind_pes as _blind, guard as _guard, qp as _qp
 from seekopt.design.blas import blas_limit
-from seekopt.design.predict import set_loop_maps
+from seekopt.design.predict import feedforward_scale, set_loop_maps
 from seekopt.design.metrics import DEFAULT_TAIL_S
 from seekopt.design.problem import ProblemError, SeekProblem, check_closed_loop
 from seekopt.design.profiles import reference_from_model, t_bang_bang
@@ -144,7 +144,11 @@ class SeekDesigner(SettleSearch):
         plant, ``horizon`` samples long (kept with the loop maps' horizon)."""
         if self._bpes_h < horizon:
             f, g = _blind.blind_pes_freqs(self.guard_bands, self.problem.blind_pes_points)
-            self._bpes = _blind.blind_pes_maps(self.plant, self.controller, horizon, f, g)
+            m0, base = (self._maps or [None])[0], None
+            if (m0 is not None and m0.horizon >= horizon and feedforward_scale(self.plants[0]) == 1.0
+                    and self.plants[0].hash() == self.plant.hash()):     # the design plant's own loop, already simulated
+                base = {"y_uff": m0.y_u, "y_r": m0.y_r, "u_sub_uff": m0.i_u, "u_sub_r": m0.i_r}
+            self._bpes = _blind.blind_pes_maps(self.plant, self.controller, horizon, f, g, base=base)
             self._bpes_h = horizon
         return self._bpes
 
@@ -194,10 +198,12 @@ class SeekDesigner(SettleSearch):
     def _working_set(self, qp: _qp.SeekQP) -> WorkingSetQP:
         if qp not in self._ws:
             s = self.settings
+            # daqp's own phase-1 proof first on sets of up to 3 plants (WorkingSetQP's phase1_first: measured
+            # cheaper there, also warm; slower on 22-plant sets)
             self._ws[qp] = WorkingSetQP(qp, lambda n, m: SolverChain(n, m, s.chain, s.options,
                                                                      builds=self._count_solver),
                                         pad=s.qp_solver != DAQP_PKG,
-                                        phase1_first=len(self.plants) == 1 and s.chain[1:2] != (PIQP,))
+                                        phase1_first=len(self.plants) <= 3 and s.chain[1:2] != (PIQP,))
         return self._ws[qp]
 
     def _solve(self, qp: _qp.SeekQP, K, n, beta, stats: SolveStats, warm=None, epigraph=False, confirm=True,
