@@ -182,7 +182,7 @@ def bench(calls: list, names, every: int = 1) -> None:
             verdicts[nm, ref["status"], r["status"] + ("+cert" if cert else "")] += 1
     print(f"{len(sel)} QPs (every {every}), n = {min(len(q['g']) for q in sel)}-{max(len(q['g']) for q in sel)}, "
           f"rows {min(len(q['A']) for q in sel)}-{max(len(q['A']) for q in sel)}")
-    print(f"| solver | CPU total [ms] | max violation | max rel. obj. diff | daqp cold verdict -> solver's |")
+    print("| solver | CPU total [ms] | max violation | max rel. obj. diff | daqp cold verdict -> solver's |")
     print("|---|---|---|---|---|")
     for nm in names:
         v = ", ".join(f"{a}->{b}: {c}" for (n2, a, b), c in sorted(verdicts.items()) if n2 == nm)
