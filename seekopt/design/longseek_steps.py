@@ -150,7 +150,7 @@ class StepDesigns:
         ez, iz = np.r_[e, np.zeros(H)], np.vstack([i, np.zeros_like(i)])   # e_A, i_A = 0 beyond the horizon
         if np.max(np.abs(i)) + hold > self.imax:
             raise LongSeekError(f"velocity step to {step.velocity_track_s:g} track/s exceeds Imax on the design plant")
-        lim = 0.5 * (1 + self.gamma) * self.imax - hold    # compositions may use half the QP's current margin
+        lim = self._composition_limit()    # compositions may use half the QP's current margin
         m_ok = H
         for m in range(H - 1, 0, -1):     # arrival error e_A(m + j) - e_A(j), scanned down in m (m < N: overlap)
             k = settle_index(ez[m:m + H] - e, self.settle)
@@ -164,6 +164,11 @@ class StepDesigns:
     def _lim(self) -> float:
         """The seek's current limit without the hold, ``gamma Imax - |bias|`` [A]."""
         return self.gamma * self.imax - abs(self.plant.bias_a)
+
+    def _composition_limit(self) -> float:
+        """A composition's total current limit, ``(1 + gamma) / 2 Imax - |bias|`` [A]: half the QP's current
+        margin (the velocity steps' overlap and :func:`~seekopt.design.accel_step.plan_seek`'s plans)."""
+        return 0.5 * (1 + self.gamma) * self.imax - abs(self.plant.bias_a)
 
     def accel_step(self) -> AccelStep:
         """The shortest acceleration step (:mod:`seekopt.design.accel_step`) on the problem's set, designed
