@@ -402,12 +402,9 @@ class EffectAwareDesigner:
         limit = self.settings.current_margin * self.imax
         comp, peak, imap = compensate(self.nlp_plant, self.controller, lin.profile, T0, input_gain=True)
         for _ in range(3):
-            # the NLP bounds the feedforward command by Imax too (|v| <= 1): a compensation that needs more
-            # (a torque constant below 1 with the feedback opposing) would be clipped there, not the linear design
-            ff = float(np.max(np.abs(comp.current_a))) / self.imax
-            if peak <= limit * (1 + 1e-6) and ff <= 1 + 1e-9:
+            if peak <= limit * (1 + 1e-6):
                 return lin, comp, imap
-            frac = math.floor(100.0 * lin.profile.imax_a / self.imax * min(limit / peak, 1.0 / ff)) / 100.0
+            frac = math.floor(100.0 * lin.profile.imax_a / self.imax * limit / peak) / 100.0
             if frac < 0.3:
                 break
             if frac not in self._derated:
