@@ -134,7 +134,9 @@ class SeekQP:
         ks = pes_row_samples(Ns, Hn)
         self.pes_k = ks
         ncur = min(Hn, N + current_extra)
-        blocks, c0, c1, kinds = [], [], [], []    # offsets: c = c0 + K c1 (band / Imax units)
+        blocks, c0, c1 = [], [], []    # offsets: c = c0 + K c1 (band / Imax units)
+        kinds = []      # (kind, plant, samples) per block of rows
+        pes_at = {}     # plant -> (first row, samples) of its "pes" block
 
         if not self.free_ref:
             Rfull = np.asarray(R, float)[:Hn, :N]
@@ -151,7 +153,9 @@ class SeekQP:
             reps = ((-1.0, "pes_hi"), (1.0, "pes_lo")) if epigraph else ((0.0, "pes"),)
             for sgn, kind in reps:
                 blocks.append((av, aq, sgn if epigraph else None)); c0.append(off0); c1.append(off1)
-                kinds += [(kind, i, int(k)) for k in ksi]
+                if kind == "pes":
+                    pes_at[i] = (sum(len(kd[2]) for kd in kinds), ksi)
+                kinds.append((kind, i, np.asarray(ksi, dtype=int)))
         for i, m in enumerate(maps):   # nominal: seek + 40 samples; other plants: seek + 8 (never thinned)
             Tiu, Tir, sir = m.current_rows(ncur if i == 0 else min(Hn, N + 8), N if self.free_ref else Hn)
             if self.free_ref:
@@ -161,7 +165,7 @@ class SeekQP:
                 av, aq = Tiu[:, :N] + Tir @ Rfull, None
                 off0, off1 = np.full(Tiu.shape[0], m.hold_a / imax), np.zeros(Tiu.shape[0])
             blocks.append((av, aq, None)); c0.append(off0); c1.append(off1)
-            kinds += [("cur", i, j) for j in range(av.shape[0])]
+            kinds.append(("cur", i, np.arange(av.shape[0])))
         if hf is not None:     # hf = (G, freqs): rows on the nominal plant's sub-step currents
             G = hf[0]
             m = maps[0]
@@ -175,7 +179,7 @@ class SeekQP:
                 av, aq = imax * G @ (Tiu[:, :N] + Tir @ Rfull) / band, None
                 off0, off1 = np.zeros(G.shape[0]), np.zeros(G.shape[0])
             blocks.append((av, aq, None)); c0.append(off0); c1.append(off1)
-            kinds += [("hf", 0, j) for j in range(G.shape[0])]
+            kinds.append(("hf", 0, np.arange(G.shape[0])))
         ncol = N if self.free_ref else Hn
 
         def pos_block(h_u, h_r, s_r, target):
@@ -192,11 +196,11 @@ class SeekQP:
         self.s_vel = maps[0].k0 * imax * N / (fs * fs)
         av = np.zeros((2, N)); av[0] = M[0] * imax / self.s_pos; av[1] = M[1] * imax / self.s_vel
         blocks.append((av, None, None)); c0.append(np.zeros(2)); c1.append(np.zeros(2))
-        kinds += [("rigid", 0, 0), ("rigid", 0, 1)]
+        kinds.append(("rigid", 0, np.arange(2)))
         if slew is not None:
             D = np.eye(N + 1, N) - np.eye(N + 1, N, -1)
             blocks.append((D, None, None)); c0.append(np.zeros(N + 1)); c1.append(np.zeros(N + 1))
-            kinds += [("slew", 0, j) for j in range(N + 1)]
+            kinds.append(("slew", 0, np.arange(N + 1)))
         self.A0, self.A1 = _assemble(blocks, n, N)    # the explicit rows
         # a blind-band mode's PES added to each band plant's (seekopt.design.blind_pes), both signs: derived
         # rows (a band row +- a shared row, seekopt.design.qp_rows), after the explicit rows;
@@ -208,7 +212,6 @@ class SeekQP:
         D0 = D1 = None
         vp, vd, vs = [], [], []
         if bp_plants:
-            row_of = {(kd[1], kd[2]): r for r, kd in enumerate(kinds) if kd[0] == "pes"}
             dblocks = []
             for dy_u, dy_r in bpes:
                 dv, dq, d0, d1 = pos_block(dy_u, dy_r, np.cumsum(dy_r), 0.0)
@@ -217,17 +220,22 @@ class SeekQP:
             nk = len(ks_other)
             c0b, c1b = np.concatenate(c0), np.concatenate(c1)
             for i in bp_plants:
-                prow = np.array([row_of[(i, int(k))] for k in ks_other])
+                r0, ksi = pes_at[i]          # the plant's band rows on ks_other's samples
+                at = np.searchsorted(ksi, ks_other)
+                if not np.array_equal(ksi[np.minimum(at, len(ksi) - 1)], ks_other):
+                    raise ValueError("blind-band PES samples without band rows")
+                prow = r0 + at
                 for f, b in enumerate(dblocks):
                     for sgn in (1.0, -1.0):
                         vp.append(prow); vd.append(f * nk + np.arange(nk)); vs.append(np.full(nk, sgn))
                         c0.append(c0b[prow] + sgn * b[3]); c1.append(c1b[prow] + sgn * b[4])
-                        kinds += [("bpes", i, int(k)) for k in ks_other]
+                        kinds.append(("bpes", i, np.asarray(ks_other, dtype=int)))
         cat = (lambda v: np.concatenate(v)) if vp else (lambda v: None)
         self.rows = SeekRows(self.A0, self.A1, D0, D1, cat(vp), cat(vd), cat(vs))
-        self.kind = np.array([k[0] for k in kinds])
-        self.plant_idx = np.array([k[1] for k in kinds])
-        self.sample = np.array([k[2] for k in kinds])
+        lens = [len(kd[2]) for kd in kinds]
+        self.kind = np.repeat(np.array([kd[0] for kd in kinds]), lens)
+        self.plant_idx = np.repeat(np.array([kd[1] for kd in kinds], dtype=int), lens)
+        self.sample = np.concatenate([kd[2] for kd in kinds])
         self.c0, self.c1 = np.concatenate(c0), np.concatenate(c1)
         self.m = self.rows.m
         self.band_plants = set(band_plants)
@@ -267,6 +275,7 @@ class SeekQP:
         self._H_K, self._H = None, None          # H of the last |K| (hessian())
         self._mat_K, self._mat = None, None      # (H, A) written out, of the last |K| (matrices())
         self._make_solver, self._solver = solver, None
+        self._bounds_key, self._bounds = None, None      # bounds() of the last arguments
         # row masks of bounds() (computed once)
         self._pes = np.isin(self.kind, ("pes", "pes_hi", "pes_lo")) & np.isin(self.plant_idx, list(self.band_plants))
         self._masks = {k: self.kind == k for k in ("pes_hi", "pes_lo", "cur", "hf", "bpes", "rigid", "slew")}
@@ -335,7 +344,18 @@ class SeekQP:
 
     def bounds(self, K: float, nseek: int, beta: float | None, gamma: float, hf_tol: float | None,
                slew_a_per_s: float | None = None, nominal_from: int | None = None):
-        """``(g, lba, uba, lbx, ubx)`` (numpy) of :meth:`data`."""
+        """``(g, lba, uba, lbx, ubx)`` (numpy) of :meth:`data`; the last call's arrays are kept (the designer's
+        re-check and the working set ask for the same bounds of each solve) and returned read-only."""
+        key = (float(K), int(nseek), beta, float(gamma), hf_tol, slew_a_per_s, nominal_from)
+        if self._bounds_key == key:
+            return self._bounds
+        out = self._bounds_of(K, nseek, beta, gamma, hf_tol, slew_a_per_s, nominal_from)
+        for a in out:
+            a.flags.writeable = False
+        self._bounds_key, self._bounds = key, out
+        return out
+
+    def _bounds_of(self, K, nseek, beta, gamma, hf_tol, slew_a_per_s, nominal_from):
         aK = abs(K)
         N, n = self.N, self.n
         if not 0 < nseek <= N:

@@ -55,6 +55,14 @@ class SeekRows:
         self._aK = 0.0
         self._Dk = self.D0
         self._abs = None
+        # both parts side by side (rows gathered once, _rows): the columns they share, if any, are summed
+        self._disjoint = not np.intersect1d(self._c0, self._c1).size
+        self._P = np.hstack([self._P0, self._P1]) if self._disjoint else None
+        self._at = np.full(self.n, -1)            # column -> its place in _P (-1: zero in both parts)
+        if self._disjoint:
+            self._at[self._c0] = np.arange(self._c0.size)
+            self._at[self._c1] = self._c0.size + np.arange(self._c1.size)
+        self._cols_key, self._cols_map = None, None
 
     def at(self, aK: float) -> "SeekRows":
         """Fix ``|K|`` (kept until the next call with another ``|K|``)."""
@@ -88,11 +96,27 @@ class SeekRows:
 
     def _rows(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """Explicit rows ``rows`` (< ``m_b``) of ``A0 + |K| A1`` on columns ``cols`` (from the parts' own
-        columns: whole rows of contiguous arrays, then the columns)."""
+        columns: whole rows of contiguous arrays, then the columns).  Parts on disjoint columns: the rows of
+        both gathered at once and the columns picked from them (the same numbers: ``|K| A1`` is the one
+        product, no sum)."""
+        if self._disjoint:
+            at, scaled = self._col_map(cols)
+            out = self._P[rows][:, np.maximum(at, 0)]
+            out[:, scaled] *= self._aK
+            out[:, at < 0] = 0.0
+            return out
         out = np.zeros((rows.size, self.n))
         out[:, self._c0] = self._P0[rows]
         out[:, self._c1] += self._aK * self._P1[rows]
         return out[:, cols]
+
+    def _col_map(self, cols: np.ndarray):
+        """``(place in _P, is an A1 column)`` of ``cols`` (the last ``cols``' kept: a working set's rounds
+        share them)."""
+        if self._cols_key is None or not np.array_equal(self._cols_key, cols):
+            at = self._at[cols]
+            self._cols_key, self._cols_map = cols.copy(), (at, np.flatnonzero(at >= self._c0.size))
+        return self._cols_map
 
     def take(self, rows: np.ndarray, cols: np.ndarray | None = None) -> np.ndarray:
         """The rows ``rows`` (and columns ``cols``) as an explicit array."""
