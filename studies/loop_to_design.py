@@ -124,6 +124,7 @@ def run_case(name: str, out: Path, tracks, starts, seeks: int, robust: str) -> l
                 m, _ = play_seek(T, ctrl, prof, T0)
                 row.update(aware_ms=m.settle_time_s * 1e3, peak_a=m.peak_current_a,
                            ipopt_s=float(prof.meta.get("ipopt_time_s", "nan")),
+                           ipopt_cpu_s=float(prof.meta.get("ipopt_cpu_s", "nan")),
                            path="NLP" if prof.kind == "optimal-nlp" else "QP (linear plant)", note="")
             rows.append(row)
             print(json.dumps(row), file=sys.stderr, flush=True)
@@ -133,7 +134,7 @@ def run_case(name: str, out: Path, tracks, starts, seeks: int, robust: str) -> l
 def table(rows) -> str:
     head = ("| drive | K | start (track) | linear design | effect-aware | effect-free | aware / free "
             "| known-plant design, effect-free | aware / known | peak A "
-            "| path | Ipopt s | note |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+            "| path | Ipopt s (CPU s) | note |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     out = [head]
     for r in rows:
         ratio = r["aware_ms"] / r["free_ms"] if r["free_ms"] > 0 else math.nan
@@ -142,7 +143,7 @@ def table(rows) -> str:
         out.append(f"| {r['case']} | {r['K']:g} | {r['start']} | {r['linear_ms']:.3f} ms | {r['aware_ms']:.3f} ms | "
                    f"{r['free_ms']:.3f} ms | {ratio:.2f} | {kf:.3f} ms | {rk:.2f} | {r.get('peak_a', math.nan):.3f} | "
                    f"{r.get('path', '-')} | "
-                   f"{r.get('ipopt_s', math.nan):.1f} | {r.get('note', '')} |")
+                   f"{r.get('ipopt_s', math.nan):.1f} ({r.get('ipopt_cpu_s', math.nan):.1f}) | {r.get('note', '')} |")
     return "\n".join(out)
 
 

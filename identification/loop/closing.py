@@ -38,7 +38,7 @@ from identification.logs.seeklog import SeekLog
 from identification.loop.candidates import CANDIDATES, fit_candidate
 from identification.loop.compensate import compensate, reidentified
 from identification.loop.evidence import describe_residual, evidence_lines, unexplained_lines
-from identification.loop.decision import OUT_OF_LIBRARY, passes, proxy_for
+from identification.loop.decision import OUT_OF_LIBRARY, passes, proxy_for, rank
 from identification.loop.fit_engine import Data, Fit, refit_base
 from identification.loop.joint import held_base, needs_joint_refit
 from identification.loop.reidentify import _relinearised, _reidentify, reidentified_meta
@@ -135,17 +135,23 @@ def _try_candidates(names, accepted, cur: _State, fit: Data, val: Data, same: bo
         rv = evaluate(F.plant, val, same, record=True)
         if rv.rms < cur.val.rms:
             F, rv = _with_table_refitted(F, rv, fit, val, same, st, say)
-        rf, drop = None, float("nan")
+        rf, drop, rdrop = None, float("nan"), float("nan")
         need = 1.0 if F.n_params <= 0 else 1.0 - st.min_validation_drop
-        if rv.rms <= need * cur.val.rms:       # information criterion on the fit data
+        rate0, rate1 = cur.val.rate_rms, rv.rate_rms
+        by_rate = F.n_params > 0 and rate1 <= (1.0 - st.min_validation_drop) * rate0 \
+            and rv.rms <= (1.0 + st.min_validation_drop) * cur.val.rms
+        if rv.rms <= need * cur.val.rms or by_rate:       # information criteria on the fit data
             rf = evaluate(F.plant, fit, record=True)
             drop = cur.bic - bic(rf.e, F.n_params, cur.n_eff)
+            rdrop = cur.bic_rate - bic(fit.windows.rate(rf.e)[0], F.n_params, cur.n_eff_rate)
         step = Step(name, F.params, ev.get(name, ""), cur.val.rms, rv.rms, False, it, drop,
-                    rv.fit_percent, improved_fraction(rv, cur.val), F.n_params, F.note, F.plant)
+                    rv.fit_percent, improved_fraction(rv, cur.val), F.n_params, F.note, F.plant,
+                    rate0, rate1, rdrop, improved_fraction(rv, cur.val, rate=True))
         tried.append((step, rf, rv))
         say(f"  {name}: val rms {rv.rms:.4g} ({100 * (1 - rv.rms / cur.val.rms):+.1f} %), "
-            f"BIC drop {drop:.1f}, {F.n_params:+.3g} parameters, seeks improved {100 * step.improved_fraction:.0f} % "
-            f"({time.time() - tc:.1f} s)")
+            f"BIC drop {drop:.1f}, {F.n_params:+.3g} parameters, seeks improved {100 * step.improved_fraction:.0f} %; "
+            f"rate {rate1:.4g} ({100 * (1 - rate1 / rate0):+.1f} %), BIC drop {rdrop:.1f}, seeks improved "
+            f"{100 * step.rate_improved_fraction:.0f} % ({time.time() - tc:.1f} s)")
     return tried
 
 
@@ -212,7 +218,7 @@ def close_loop(log: SeekLog, model: ModalPlant, validation: SeekLog | None = Non
         if not ok:
             stage("candidates", ts, f"iteration {it}: {len(tried)} candidates fitted, none accepted")
             break
-        best, rf, rv = max(ok, key=lambda t: t[0].bic_drop)     # one criterion for all: the BIC on the fit data
+        best, rf, rv = max(ok, key=lambda t: rank(t[0], cur, st))     # the BIC on the fit data (of the level, then the rate)
         best.accepted = True
         accepted.append(best.effect)
         before = cur.val.rms

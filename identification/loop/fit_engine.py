@@ -282,10 +282,12 @@ def vp_search(data: Data, make, grid, settings, log_scale: bool = False):
     return refit_base(make(x), data), x
 
 
-def pick_by_bic(plant: ModalPlant, data: Data, fits):
-    """``fits``: list of (n_params, plant) -> ``(n_params, plant)`` with the lowest BIC."""
-    n_eff = effective_n(Engine(plant, data).residual(), data.windows)
-    scored = [(bic(Engine(p, data).residual(), k, n_eff), k, p) for k, p in fits]
+def pick_by_bic(plant: ModalPlant, data: Data, fits, rate: bool = False):
+    """``fits``: list of (n_params, plant) -> ``(n_params, plant)`` with the lowest BIC (of the
+    residual's rate, :meth:`~identification.loop.windows.Windows.rate`, with ``rate``)."""
+    f = (lambda e: data.windows.rate(e)) if rate else (lambda e: (e, data.windows))
+    n_eff = effective_n(*f(Engine(plant, data).residual()))
+    scored = [(bic(f(Engine(p, data).residual())[0], k, n_eff), k, p) for k, p in fits]
     return min(scored, key=lambda t: t[0])[1:]
 
 

@@ -117,11 +117,14 @@ def _relinearised(F, plant: ModalPlant, fit: Data, same: bool, st: LoopSettings,
     new = _identified_again(F.plant, fit, same, st)
     if new is None:
         return F
-    sse = {k: float(np.sum(evaluate(p, fit).e ** 2)) for k, p in (("new", new), ("old", F.plant))}
+
+    def rate_sse(p):   # of the output error's rate, the lag's signature (Windows.rate), as the lag's fit
+        return float(np.sum(fit.windows.rate(evaluate(p, fit).e)[0] ** 2))
+    sse = {"new": rate_sse(new), "old": rate_sse(F.plant)}
     ctrl = _identified_again(plant, fit, same, st) if sse["new"] < sse["old"] else None
-    sse["control"] = float(np.sum(evaluate(ctrl, fit).e ** 2)) if ctrl is not None else float("inf")
+    sse["control"] = rate_sse(ctrl) if ctrl is not None else float("inf")
     n = fit.n
-    say(f"  {F.effect}: fit rms {np.sqrt(sse['old'] / n):.4g} on the identified linear part, "
+    say(f"  {F.effect}: fit rate rms {np.sqrt(sse['old'] / n):.4g} on the identified linear part, "
         f"{np.sqrt(sse['new'] / n):.4g} with it identified again (identified again without it: "
         f"{np.sqrt(sse['control'] / n):.4g})")
     if sse["new"] >= min(sse["old"], sse["control"]):

@@ -67,6 +67,12 @@ class Residual:
         return rms(self.e)
 
     @property
+    def rate_rms(self) -> float:
+        """RMS of the residual's first difference within each window [track/sample]
+        (:meth:`Windows.rate`: the part of the error the fast dynamics set)."""
+        return rms(self.windows.rate(self.e)[0])
+
+    @property
     def fit_percent(self) -> float:
         return fit_percent(self.log, self.windows, self.e)
 

@@ -29,9 +29,14 @@ def errors(res: Residual) -> dict:
     return {"rms_track": float(res.rms), "fit_percent": float(res.fit_percent)}
 
 
-def improved_fraction(new: Residual, old: Residual) -> float:
-    """Fraction of validation seeks whose squared error the new model lowers [-]."""
-    n, o = new.windows.per_group(new.e), old.windows.per_group(old.e)
+def improved_fraction(new: Residual, old: Residual, rate: bool = False) -> float:
+    """Fraction of validation seeks whose squared error (``rate``: of the error's first
+    difference, :meth:`Windows.rate`) the new model lowers [-]."""
+    if rate:
+        (en, wn), (eo, wo) = new.windows.rate(new.e), old.windows.rate(old.e)
+        n, o = wn.per_group(en), wo.per_group(eo)
+    else:
+        n, o = new.windows.per_group(new.e), old.windows.per_group(old.e)
     return float(np.mean([n[g] < o[g] for g in n]))
 
 
@@ -40,7 +45,10 @@ class Step:
     """One candidate tried at one iteration (errors: validation RMS [track]).
 
     ``bic_drop`` is the drop of the output-error BIC on the fit data [nats] (NaN when the
-    validation RMS did not qualify); ``n_params`` the change in the number of parameters."""
+    validation RMS did not qualify); ``n_params`` the change in the number of parameters;
+    ``rate_before``/``rate_after`` [track/sample], ``rate_bic_drop`` [nats] and
+    ``rate_improved_fraction`` [-] the same figures for the error's first difference
+    (:meth:`identification.loop.windows.Windows.rate`; NaN when not computed)."""
 
     effect: str
     params: dict
@@ -55,6 +63,10 @@ class Step:
     n_params: float = 0.0
     note: str = ""
     plant: ModalPlant | None = field(default=None, repr=False)
+    rate_before: float = float("nan")
+    rate_after: float = float("nan")
+    rate_bic_drop: float = float("nan")
+    rate_improved_fraction: float = float("nan")
 
     def to_dict(self) -> dict:
         return {"effect": self.effect, "params": jsonable(self.params), "evidence": self.evidence,

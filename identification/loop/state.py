@@ -66,10 +66,15 @@ class _State:
     val: Residual
     n_eff: float = 0.0
     bic: float = 0.0
+    n_eff_rate: float = 0.0     #: the same for the error's first difference (:meth:`Windows.rate`)
+    bic_rate: float = 0.0
 
     def rescore(self, fit: Data) -> "_State":
         self.n_eff = effective_n(self.fit.e, fit.windows)
         self.bic = bic(self.fit.e, 0, self.n_eff)
+        r, w = fit.windows.rate(self.fit.e)
+        self.n_eff_rate = effective_n(r, w)
+        self.bic_rate = bic(r, 0, self.n_eff_rate)
         return self
 
 

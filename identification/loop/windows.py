@@ -63,6 +63,19 @@ class Windows:
             last = g
         return out
 
+    def rate(self, e: np.ndarray) -> tuple:
+        """First difference of ``e`` (concatenated window samples, e.g. a residual [track]) within
+        each window, and the windows it lives on (each one sample shorter: ``[a + 1, b)``).
+
+        The rate of the output error is what the fast dynamics set (amplifier lag, delay, modes):
+        differencing divides by ``~ 1 / (2 sin(pi f / fs))`` the force noise the rigid body
+        integrates twice, which dominates the output error's RMS at low frequency.
+        Returns ``(rate [unit per sample], Windows)``."""
+        cuts = np.cumsum([b - a for a, b in self.bounds])[:-1]
+        segs = np.split(np.asarray(e), cuts) if self.bounds else []
+        d = np.concatenate([np.diff(s, axis=0) for s in segs]) if segs else np.zeros((0,) + np.shape(e)[1:])
+        return d, Windows([(a + 1, b) for a, b in self.bounds], list(self.groups))
+
     def select_groups(self, keep) -> "Windows":
         keep = set(keep)
         sel = [i for i, g in enumerate(self.groups) if g in keep]
