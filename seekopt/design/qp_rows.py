@@ -21,6 +21,13 @@ import numpy as np
 __all__ = ["SeekRows"]
 
 
+def _as_slice(idx: np.ndarray):
+    """``idx`` as a slice when it is a run of consecutive indices (a view, not a gather), else ``idx``."""
+    if idx.size and np.all(np.diff(idx) == 1):
+        return slice(int(idx[0]), int(idx[-1]) + 1)
+    return idx
+
+
 class SeekRows:
     """Rows ``A(K)`` of a seek QP: ``m_b`` explicit rows ``A0 + |K| A1`` and derived rows
     ``A[p] + s (D0 + |K| D1)[d]`` (module docstring).
@@ -52,17 +59,16 @@ class SeekRows:
         self._c0 = np.flatnonzero(np.any(A0 != 0, axis=0))
         self._c1 = np.flatnonzero(np.any(A1 != 0, axis=0))
         self._P0, self._P1 = A0[:, self._c0], A1[:, self._c1]
+        # parts on disjoint columns (the seek QP's): an entry of A(K) is one part's, or zero
+        self._disjoint = not np.intersect1d(self._c0, self._c1).size
+        self._at0, self._at1 = np.full(self.n, -1), np.full(self.n, -1)    # column -> its place in a part
+        self._at0[self._c0] = np.arange(self._c0.size)
+        self._at1[self._c1] = np.arange(self._c1.size)
         self._aK = 0.0
         self._Dk = self.D0
         self._abs = None
-        # both parts side by side (rows gathered once, _rows): the columns they share, if any, are summed
-        self._disjoint = not np.intersect1d(self._c0, self._c1).size
-        self._P = np.hstack([self._P0, self._P1]) if self._disjoint else None
-        self._at = np.full(self.n, -1)            # column -> its place in _P (-1: zero in both parts)
-        if self._disjoint:
-            self._at[self._c0] = np.arange(self._c0.size)
-            self._at[self._c1] = self._c0.size + np.arange(self._c1.size)
-        self._cols_key, self._cols_map = None, None
+        self._cols_key, self._cols_map = None, None     # _col_map of the last columns
+        self._dcols = None                              # the shared rows at |K| on the last columns
 
     def at(self, aK: float) -> "SeekRows":
         """Fix ``|K|`` (kept until the next call with another ``|K|``)."""
@@ -70,6 +76,7 @@ class SeekRows:
         if self._aK != aK:
             self._aK = aK
             self._Dk = self.D0 + aK * self.D1
+            self._dcols = None
         return self
 
     def _base(self, x: np.ndarray) -> np.ndarray:
@@ -96,14 +103,13 @@ class SeekRows:
 
     def _rows(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """Explicit rows ``rows`` (< ``m_b``) of ``A0 + |K| A1`` on columns ``cols`` (from the parts' own
-        columns: whole rows of contiguous arrays, then the columns).  Parts on disjoint columns: the rows of
-        both gathered at once and the columns picked from them (the same numbers: ``|K| A1`` is the one
-        product, no sum)."""
+        columns: whole rows of contiguous arrays, then the columns).  Parts on disjoint columns: each part's
+        columns among ``cols`` picked from its rows (the same numbers: ``|K| A1`` is the one product, no sum)."""
         if self._disjoint:
-            at, scaled = self._col_map(cols)
-            out = self._P[rows][:, np.maximum(at, 0)]
-            out[:, scaled] *= self._aK
-            out[:, at < 0] = 0.0
+            j0, i0, j1, i1 = self._col_map(cols)
+            out = np.zeros((rows.size, cols.size))
+            out[:, j0] = self._P0[rows, i0] if isinstance(i0, slice) else self._P0[rows][:, i0]
+            out[:, j1] = self._aK * (self._P1[rows, i1] if isinstance(i1, slice) else self._P1[rows][:, i1])
             return out
         out = np.zeros((rows.size, self.n))
         out[:, self._c0] = self._P0[rows]
@@ -111,23 +117,39 @@ class SeekRows:
         return out[:, cols]
 
     def _col_map(self, cols: np.ndarray):
-        """``(place in _P, is an A1 column)`` of ``cols`` (the last ``cols``' kept: a working set's rounds
-        share them)."""
+        """``(j0, i0, j1, i1)``: the places ``j`` in ``cols`` of the columns of part 0 / 1 and their places ``i``
+        in the part (the last ``cols``' kept: a working set's rounds share them)."""
         if self._cols_key is None or not np.array_equal(self._cols_key, cols):
-            at = self._at[cols]
-            self._cols_key, self._cols_map = cols.copy(), (at, np.flatnonzero(at >= self._c0.size))
+            a0, a1 = self._at0[cols], self._at1[cols]
+            j0, j1 = np.flatnonzero(a0 >= 0), np.flatnonzero(a1 >= 0)
+            self._cols_key = cols.copy()
+            self._cols_map = tuple(_as_slice(v) for v in (j0, a0[j0], j1, a1[j1]))
+            self._dcols = None
         return self._cols_map
 
+    def _shared_cols(self, cols: np.ndarray) -> np.ndarray:
+        """The shared rows ``D0 + |K| D1`` on columns ``cols`` (kept for the last ``|K|`` and columns)."""
+        if self._dcols is None or not np.array_equal(self._dcols[0], cols):
+            self._dcols = (cols.copy(), self._Dk[:, cols])
+        return self._dcols[1]
+
     def take(self, rows: np.ndarray, cols: np.ndarray | None = None) -> np.ndarray:
-        """The rows ``rows`` (and columns ``cols``) as an explicit array."""
+        """The rows ``rows`` (and columns ``cols``) as an explicit array: a derived row is its explicit row's
+        entries plus its signed shared row's (gathered with the explicit rows, then added)."""
         rows = np.asarray(rows, dtype=int)
         cols = np.arange(self.n) if cols is None else np.asarray(cols, dtype=int)
-        out = np.empty((rows.size, cols.size))
-        exp = rows < self.m_b
-        out[exp] = self._rows(rows[exp], cols)
-        if not np.all(exp):
-            j = rows[~exp] - self.m_b
-            out[~exp] = self._rows(self.p[j], cols) + self.s[j, None] * self._Dk[np.ix_(self.d[j], cols)]
+        der = np.flatnonzero(rows >= self.m_b)
+        if not der.size:
+            return self._rows(rows, cols)
+        j = rows[der] - self.m_b
+        src = rows.copy()
+        src[der] = self.p[j]
+        out = self._rows(src, cols)
+        add = self.s[j, None] * self._shared_cols(cols)[self.d[j]]
+        if der[0] == rows.size - der.size:       # derived rows last (sorted rows): one slice
+            out[der[0]:] += add
+        else:
+            out[der] += add
         return out
 
     def dense(self) -> np.ndarray:
