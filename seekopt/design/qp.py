@@ -60,6 +60,28 @@ def set_row_samples(nmax: int, horizon: int, stride: int = 1) -> np.ndarray:
     return np.unique(np.r_[near[(near % (2 * stride)) < 2] if stride > 1 else near, ks[ks >= nmax + 32]]).astype(int)
 
 
+def _parts(blocks, n: int, N: int):
+    """The row blocks of :func:`_assemble` as :meth:`SeekRows.from_parts`' parts, ``((cols0, P0), (cols1, P1))``:
+    ``a_v`` (and ``t`` on the last column) in ``P0`` on columns ``0..N-1`` (and ``n - 1``), ``a_q`` in ``P1`` on
+    the reference columns ``N..`` -- the ``A0``, ``A1`` of :func:`_assemble` on those columns only."""
+    m = sum(v.shape[0] for v, _, _ in blocks)
+    has_t = any(t is not None for _, _, t in blocks)
+    nq = max([q.shape[1] for _, q, _ in blocks if q is not None], default=0)
+    P0 = np.zeros((m, N + has_t), order="F")       # column-major: SeekRows keeps its parts so
+    P1 = np.zeros((m, nq), order="F")
+    r = 0
+    for v, q, t in blocks:
+        k = v.shape[0]
+        P0[r:r + k, :N] = v
+        if q is not None:
+            P1[r:r + k, :q.shape[1]] = q
+        if t is not None:
+            P0[r:r + k, -1] = t
+        r += k
+    cols0 = np.r_[np.arange(N), n - 1] if has_t else np.arange(N)
+    return (cols0, P0), (N + np.arange(nq), P1)
+
+
 def _assemble(blocks, n: int, N: int):
     """``(A0, A1)``: row blocks ``(a_v, a_q, t)`` placed into two ``(rows, n)`` arrays -- ``a_v`` on the
     ``N`` feedforward columns and ``t`` (a number) on the epigraph column of ``A0``, ``a_q`` on the
@@ -201,7 +223,7 @@ class SeekQP:
             D = np.eye(N + 1, N) - np.eye(N + 1, N, -1)
             blocks.append((D, None, None)); c0.append(np.zeros(N + 1)); c1.append(np.zeros(N + 1))
             kinds.append(("slew", 0, np.arange(N + 1)))
-        self.A0, self.A1 = _assemble(blocks, n, N)    # the explicit rows
+        explicit = _parts(blocks, n, N)    # the explicit rows, on their columns
         # a blind-band mode's PES added to each band plant's (seekopt.design.blind_pes), both signs: derived
         # rows (a band row +- a shared row, seekopt.design.qp_rows), after the explicit rows;
         # ``bpes_plants``: only those (None: every band plant)
@@ -231,7 +253,7 @@ class SeekQP:
                         c0.append(c0b[prow] + sgn * b[3]); c1.append(c1b[prow] + sgn * b[4])
                         kinds.append(("bpes", i, np.asarray(ks_other, dtype=int)))
         cat = (lambda v: np.concatenate(v)) if vp else (lambda v: None)
-        self.rows = SeekRows(self.A0, self.A1, D0, D1, cat(vp), cat(vd), cat(vs))
+        self.rows = SeekRows.from_parts(n, *explicit, D0, D1, cat(vp), cat(vd), cat(vs))
         lens = [len(kd[2]) for kd in kinds]
         self.kind = np.repeat(np.array([kd[0] for kd in kinds]), lens)
         self.plant_idx = np.repeat(np.array([kd[1] for kd in kinds], dtype=int), lens)
@@ -256,12 +278,13 @@ class SeekQP:
             eblocks.append((imax * Tyu / band, Tyr / band, None) if self.free_ref
                            else (imax * (Tyu[:, :N] + Tyr @ Rfull) / band, None, None))
             e1.append((syr - 1.0) / band if self.free_ref else -np.ones(len(kt)) / band)
-        (E0, E1), e1 = _assemble(eblocks, n, N), np.concatenate(e1)
-        w = 2 * w_e / E0.shape[0]
-        # products on the nonzero blocks only (E0 lives on the feedforward columns, E1 on the reference
-        # columns): a quarter of the full-width products' work, the same numbers
+        e1 = np.concatenate(e1)
+        # the blocks stacked on their own columns only (feedforward E0v, reference E1q; the full-width
+        # arrays were zero elsewhere): products on those, a quarter of the full-width work, the same numbers
+        E0v = np.concatenate([b[0] for b in eblocks])
+        E1q = np.concatenate([b[1] for b in eblocks]) if nq else None
+        w = 2 * w_e / E0v.shape[0]
         v, q = slice(0, N), slice(N, N + nq)
-        E0v, E1q = E0[:, v], E1[:, q]
         self._P0, self._P1, self._P2 = P.copy(), np.zeros((n, n)), np.zeros((n, n))
         self._q1, self._q2 = np.zeros(n), np.zeros(n)       # g = K q1 + K|K| q2
         self._P0[v, v] += (w * E0v.T) @ E0v
@@ -281,6 +304,16 @@ class SeekQP:
         self._masks = {k: self.kind == k for k in ("pes_hi", "pes_lo", "cur", "hf", "bpes", "rigid", "slew")}
         self.bpes_tol = bpes_tol      # |blind-band PES| / band on the band rows' samples (None: rows free)
         self.build_time_s = time.perf_counter() - t_build
+
+    @property
+    def A0(self) -> np.ndarray:
+        """The explicit rows' ``|K|``-free part ``(m_b, n)`` (:attr:`SeekRows.A0`, written out on first use)."""
+        return self.rows.A0
+
+    @property
+    def A1(self) -> np.ndarray:
+        """The explicit rows' part scaled by ``|K|`` (:attr:`SeekRows.A1`)."""
+        return self.rows.A1
 
     @property
     def solver(self):
@@ -417,7 +450,7 @@ class SeekQP:
     def residual(self, x: np.ndarray, K: float, nseek: int, plants=None) -> float:
         """Worst ``|PES| / band`` over the band rows ``k >= nseek`` of ``plants`` (default all)."""
         mb = self.rows.m_b                 # band rows are explicit rows
-        e = self.A0 @ x + abs(K) * (self.A1 @ x) + self.c0[:mb] + K * self.c1[:mb]
+        e = self.row_operator(K).explicit_matvec(x) + self.c0[:mb] + K * self.c1[:mb]
         kind, sample = self.kind[:mb], self.sample[:mb]
         sel = np.isin(kind, ("pes", "pes_hi")) & (sample >= nseek)
         if plants is not None:

@@ -45,8 +45,22 @@ class SeekRows:
     """
 
     def __init__(self, A0, A1, D0=None, D1=None, p=None, d=None, s=None):
-        self.A0, self.A1 = A0, A1
-        self.m_b, self.n = A0.shape
+        A0, A1 = np.asarray(A0, dtype=float), np.asarray(A1, dtype=float)
+        n = A0.shape[1]
+        self._setup(n, (np.arange(n), A0), (np.arange(n), A1), D0, D1, p, d, s)
+
+    @classmethod
+    def from_parts(cls, n: int, part0, part1, D0=None, D1=None, p=None, d=None, s=None) -> "SeekRows":
+        """The rows from each part's entries on its columns only: ``part0 = (cols, P)`` with ``A0[:, cols] = P``
+        (``A0`` zero elsewhere), ``part1`` likewise for ``A1`` -- the full ``(m_b, n)`` arrays are never
+        written (:attr:`A0`, :attr:`A1` build them when asked)."""
+        self = cls.__new__(cls)
+        self._setup(int(n), part0, part1, D0, D1, p, d, s)
+        return self
+
+    def _setup(self, n, part0, part1, D0, D1, p, d, s):
+        (cols0, Q0), (cols1, Q1) = part0, part1
+        self.m_b, self.n = Q0.shape[0], n
         z = np.zeros(0, dtype=int)
         self.p = z if p is None else np.asarray(p, dtype=int)
         self.d = z if d is None else np.asarray(d, dtype=int)
@@ -56,9 +70,12 @@ class SeekRows:
         self.m = self.m_b + self.p.size
         # the columns each part lives on (A0: feedforward and epigraph, A1: reference): products read
         # only those, and A(K) is never formed (a robust structure's explicit rows are 20 MB per part)
-        self._c0 = np.flatnonzero(np.any(A0 != 0, axis=0))
-        self._c1 = np.flatnonzero(np.any(A1 != 0, axis=0))
-        self._P0, self._P1 = A0[:, self._c0], A1[:, self._c1]
+        nz0, nz1 = np.any(Q0 != 0, axis=0), np.any(Q1 != 0, axis=0)
+        self._c0, self._c1 = np.asarray(cols0, dtype=int)[nz0], np.asarray(cols1, dtype=int)[nz1]
+        # column-major, as a column selection gives (BLAS's products on it: the same sums as always)
+        self._P0 = Q0 if nz0.all() and Q0.flags.f_contiguous else np.asfortranarray(Q0[:, nz0])
+        self._P1 = Q1 if nz1.all() and Q1.flags.f_contiguous else np.asfortranarray(Q1[:, nz1])
+        self._full = None
         # parts on disjoint columns (the seek QP's): an entry of A(K) is one part's, or zero
         self._disjoint = not np.intersect1d(self._c0, self._c1).size
         self._at0, self._at1 = np.full(self.n, -1), np.full(self.n, -1)    # column -> its place in a part
@@ -69,6 +86,24 @@ class SeekRows:
         self._abs = None
         self._cols_key, self._cols_map = None, None     # _col_map of the last columns
         self._dcols = None                              # the shared rows at |K| on the last columns
+
+    @property
+    def A0(self) -> np.ndarray:
+        """The explicit rows' ``|K|``-free part, ``(m_b, n)`` (written out on first use)."""
+        return self._explicit()[0]
+
+    @property
+    def A1(self) -> np.ndarray:
+        """The explicit rows' part scaled by ``|K|``, ``(m_b, n)`` (written out on first use)."""
+        return self._explicit()[1]
+
+    def _explicit(self):
+        if self._full is None:
+            A0, A1 = np.zeros((self.m_b, self.n)), np.zeros((self.m_b, self.n))
+            A0[:, self._c0] = self._P0
+            A1[:, self._c1] = self._P1
+            self._full = (A0, A1)
+        return self._full
 
     def at(self, aK: float) -> "SeekRows":
         """Fix ``|K|`` (kept until the next call with another ``|K|``)."""
@@ -81,6 +116,10 @@ class SeekRows:
 
     def _base(self, x: np.ndarray) -> np.ndarray:
         return self._P0 @ x[self._c0] + self._aK * (self._P1 @ x[self._c1])
+
+    def explicit_matvec(self, x: np.ndarray) -> np.ndarray:
+        """``A x`` over the ``m_b`` explicit rows."""
+        return self._base(x)
 
     def matvec(self, x: np.ndarray) -> np.ndarray:
         """``A x`` over all ``m`` rows."""
