@@ -114,8 +114,10 @@ class SeekRows:
             self._dcols = None
         return self
 
-    def _base(self, x: np.ndarray) -> np.ndarray:
-        return self._P0 @ x[self._c0] + self._aK * (self._P1 @ x[self._c1])
+    def _base(self, x: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        t = self._P1 @ x[self._c1]
+        t *= self._aK
+        return np.add(self._P0 @ x[self._c0], t, out=out)
 
     def explicit_matvec(self, x: np.ndarray) -> np.ndarray:
         """``A x`` over the ``m_b`` explicit rows."""
@@ -123,10 +125,14 @@ class SeekRows:
 
     def matvec(self, x: np.ndarray) -> np.ndarray:
         """``A x`` over all ``m`` rows."""
-        b = self._base(x)
         if not self.p.size:
-            return b
-        return np.concatenate([b, b[self.p] + self.s * (self._Dk @ x)[self.d]])
+            return self._base(x)
+        out = np.empty(self.m)
+        b, v = out[:self.m_b], out[self.m_b:]
+        self._base(x, out=b)
+        np.multiply(self.s, (self._Dk @ x)[self.d], out=v)
+        v += b[self.p]          # = b[p] + s (D x)[d], the same sum (addition commutes)
+        return out
 
     def abs_matvec(self, ax: np.ndarray) -> np.ndarray:
         """``|A| ax`` for ``ax >= 0``, each row's ``|A0 + |K| A1|`` taken as ``|A0| + |K| |A1|`` (exact where
