@@ -50,3 +50,41 @@ def test_the_qp_has_blind_rows_on_the_operating_plants_only():
     assert {set_label(des.plants[i]) for i in with_rows} == {"nominal", "temp+4%", "temp-4%"}
     # every plant keeps its own band rows
     assert set(np.unique(qp.plant_idx[qp.kind == "pes"]).tolist()) == set(range(len(des.plants)))
+
+
+def test_blind_pes_maps_equal_the_simulated_loops_with_the_mode():
+    """The blind-band mode's PES maps by superposition on the design plant's loop equal the difference of
+    closed loops simulated with the mode (+g and -g) added to the plant (the one simulator)."""
+    from identification.model.plant import Mode
+    from seekopt.design.blind_pes import blind_pes_maps
+    from seekopt.drive.controller import Controller
+    from seekopt.drive.presets import default_truth_plant
+    from seekopt.drive.simulator import closed_loop_responses
+    plant, ctrl, H = default_truth_plant(), Controller.nss(), 300
+    freqs, gains = [11880.0, 15000.0], [1.0, 0.5]
+    maps = blind_pes_maps(plant, ctrl, H, freqs, gains)
+    lin = plant.linear_part().copy(meta={})
+    base = closed_loop_responses(lin, ctrl, H)
+    assert len(maps) == 2
+    for (du, dr), f, g in zip(maps, freqs, gains):
+        sim = {}
+        for s in (1.0, -1.0):
+            p = lin.copy(modes=sorted(list(lin.modes) + [Mode(f, 0.02, s * g)], key=lambda m: m.freq_hz))
+            r = closed_loop_responses(p, ctrl, H)
+            sim[s] = (r["y_uff"] - base["y_uff"], r["y_r"] - base["y_r"])
+        su, sr = (0.5 * (a - b) for a, b in zip(sim[1.0], sim[-1.0]))
+        assert np.max(np.abs(su)) > 1e-3 * np.max(np.abs(base["y_uff"][:50]))     # the mode matters
+        assert np.allclose(du, su, rtol=0, atol=1e-9 * np.max(np.abs(su)))
+        assert np.allclose(dr, sr, rtol=0, atol=1e-9 * np.max(np.abs(sr)))
+    # the designer's shortcut (SeekDesigner._blind_pes): its set's first loop map, longer than H and of the
+    # full plant, as the base -- the same maps as the design plant's linear loop simulated afresh
+    from seekopt.design.blind_pes import blind_pes_freqs
+    des = SeekDesigner(SeekProblem(plant, ctrl, 0.3))
+    des._loop_maps(2 * H)
+    assert des._maps[0].horizon > H
+    f, g = blind_pes_freqs(des.guard_bands, des.problem.blind_pes_points)
+    assert len(f) > 0
+    ref = blind_pes_maps(plant, ctrl, H, f, g)
+    got = des._blind_pes(H)
+    assert len(got) == len(ref)
+    assert all(np.allclose(a, b, rtol=0, atol=1e-12 * np.max(np.abs(b))) for p, q in zip(got, ref) for a, b in zip(p, q))

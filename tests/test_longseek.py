@@ -152,18 +152,14 @@ def robust_case(plant, ctrl):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("tracks", [
-    pytest.param(1e4, marks=pytest.mark.xfail(strict=True, reason="measured 8.56 ms > 8.40 ms (acceleration "
-                                              "step; 8.64 ms from the velocity step): the robust step's 46 "
-                                              "samples against the K = 1000 design's 27-sample overhead")),
-    3e4, 1e5])
+@pytest.mark.parametrize("tracks", [1e4, 3e4, 1e5])
 def test_robust_long_seeks(robust_case, plant, tracks):
     ls, overhead = robust_case
     res = ls.design(tracks)
     t_opt = t_accel_coast_decel(tracks, plant.k0, IMAX, VMAX)
     print(f"robust K={tracks:g}: settle {res.metrics.settle_time_s * 1e3:.4f} ms, bound "
-          f"{(1.1 * t_opt + overhead) * 1e3:.4f} ms, step {ls.velocity_step(VMAX).n} samples, "
-          f"step design {ls.velocity_step(VMAX).meta['design_cpu_s']:.2f} s CPU, this design {res.solve_time_s:.3f} s")
+          f"{(1.1 * t_opt + overhead) * 1e3:.4f} ms, step {ls.accel_step().n} samples, "
+          f"step design {ls.accel_step().meta['design_cpu_s']:.2f} s CPU, this design {res.solve_time_s:.3f} s")
     assert res.metrics.peak_current_a <= IMAX and res.metrics.settled
     assert "acceleration steps" in res.profile.meta["design_objective"]      # rule 1 on a plant set
     assert res.profile.meta["peak_rigid_velocity_track_s"] <= VMAX * (1 + 1e-9)
@@ -297,16 +293,18 @@ def test_rest_to_rest_up_to_keeps_the_qp_above_long_from_track(plant, ctrl, free
 
 
 @pytest.mark.slow
-def test_composition_below_long_from_track_settles_within_1_15_of_rest_to_rest(plant):
-    """Robust sweep set at 600k TPI: a seek between ``compare_from_track`` and ``long_from_track`` (2069
-    tracks, 14.7 samples at I0) is built from the acceleration step, because its predicted settle is within
-    1.15 (T_bb + the reference rest-to-rest design's overhead); the rest-to-rest design of the same seek
-    settles no more than 1.15x sooner (measured 72 against 67 samples)."""
-    from seekopt.design.longseek import SETTLE_RATIO
+@pytest.mark.parametrize("tpi", [300e3, 600e3])
+def test_composition_below_long_from_track_settles_within_1_15_of_rest_to_rest(plant, tpi):
+    """Robust sweep set at 300k and 600k TPI: a seek between ``compare_from_track`` and ``long_from_track``
+    (2069 tracks, 17.6 / 14.7 samples at I0) is built from the acceleration step, because its predicted
+    settle is within 1.15 (T_bb + the reference rest-to-rest design's overhead - OVERHEAD_SPREAD); the
+    rest-to-rest design of the same seek settles no more than 1.15x sooner (measured 81 against 71 samples
+    at 300k, where the reference overhead overestimates this seek's by 3 samples; 72 against 66 at 600k)."""
+    from seekopt.design.longseek import OVERHEAD_SPREAD, SETTLE_RATIO
     from seekopt.evaluate.sweep_config import controller_at_tpi
     from seekopt.evaluate.sweep_cell import designer_factory
-    p = plant.at_tpi(600e3)
-    c = controller_at_tpi(Controller.nss(), plant, 600e3)
+    p = plant.at_tpi(tpi)
+    c = controller_at_tpi(Controller.nss(), plant, tpi)
     ls = designer_factory("ocp-robust")(p, c, IMAX, 0.1)
     assert ls.spec.compare_below_long and LongSeekSpec.from_dict(ls.spec.to_dict()) == ls.spec
     K = 2069.0
@@ -314,7 +312,8 @@ def test_composition_below_long_from_track_settles_within_1_15_of_rest_to_rest(p
     res = ls.design(K)
     assert res.profile.kind == "long_seek" and res.metrics.settled and res.metrics.peak_current_a <= IMAX
     fs = ls.fs
-    assert res.settle_samples <= SETTLE_RATIO * (t_bang_bang(K, p.k0, IMAX) * fs + ls.rest_to_rest_overhead())
+    assert res.settle_samples <= SETTLE_RATIO * (t_bang_bang(K, p.k0, IMAX) * fs + ls.rest_to_rest_overhead()
+                                                 - OVERHEAD_SPREAD)
     r2r = ls.short_designer().design(K)
     assert res.metrics.settle_time_s <= SETTLE_RATIO * r2r.metrics.settle_time_s
     # a seek shorter than the reference stays with the rest-to-rest QP

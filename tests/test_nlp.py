@@ -408,10 +408,15 @@ def test_nlp_robust_set_is_the_linear_designers_calibrated_set(ctrl, monkeypatch
     raw = RobustSpread([LoopMaps(q, ctrl, H + 1) for q in des.linear.plants], c, H, 0.1, nmax_prev=32)
     j = int(np.argmax([abs(s - 1) for s in scales[1:]]))
     assert not np.allclose(raw.DY[j][:, :c], spread.DY[j][:, :c], rtol=1e-3, atol=0)
-    # band rows: the QP's rows of the set's other plants, on the NLP's samples after the smaller class
+    # band rows: the QP's rows of the set's other plants, on the samples that can follow a seek of this class:
+    # the class holds seeks whose input (n + input_tail) is longer than the smaller class's, so its shortest
+    # seek settles at 32 - tin + 1 and every seek of the class has the set's rows from its settle sample on
     qp = des.linear._structure(c, False)
     ks = qp.sample[np.isin(qp.kind, ("pes",)) & (qp.plant_idx == 1)]
-    assert np.array_equal(spread.band_samples, ks[(ks > 32) & (ks <= H)])
+    assert des.tin > 0
+    assert np.array_equal(spread.band_samples, ks[(ks > 32 - des.tin) & (ks <= H)])
+    for n in range(32 - des.tin + 1, c - des.tin + 1):       # the seeks this class is built for
+        assert next(k for k in des.sizes if k >= n + des.tin) == c and spread.band_samples.min() <= n
 
 
 def test_set_row_samples_are_one_rule_for_qp_and_nlp(ctrl):

@@ -60,35 +60,6 @@ def test_design_path_imports_no_scipy_signal(tmp_path):
     assert json.loads(out.stdout.strip().splitlines()[-1]) == []
 
 
-def test_blind_pes_maps_equal_the_simulated_loops_with_the_mode():
-    """The blind-band mode's PES maps by superposition on the design plant's loop equal the difference of
-    closed loops simulated with the mode (+g and -g) added to the plant (the one simulator)."""
-    from identification.model.plant import Mode
-    from seekopt.design.blind_pes import blind_pes_maps
-    from seekopt.drive.controller import Controller
-    from seekopt.drive.presets import default_truth_plant
-    from seekopt.drive.simulator import closed_loop_responses
-    plant, ctrl, H = default_truth_plant(), Controller.nss(), 300
-    freqs, gains = [11880.0, 15000.0], [1.0, 0.5]
-    maps = blind_pes_maps(plant, ctrl, H, freqs, gains)
-    lin = plant.linear_part().copy(meta={})
-    base = closed_loop_responses(lin, ctrl, H)
-    assert len(maps) == 2
-    for (du, dr), f, g in zip(maps, freqs, gains):
-        sim = {}
-        for s in (1.0, -1.0):
-            p = lin.copy(modes=sorted(list(lin.modes) + [Mode(f, 0.02, s * g)], key=lambda m: m.freq_hz))
-            r = closed_loop_responses(p, ctrl, H)
-            sim[s] = (r["y_uff"] - base["y_uff"], r["y_r"] - base["y_r"])
-        su, sr = (0.5 * (a - b) for a, b in zip(sim[1.0], sim[-1.0]))
-        assert np.max(np.abs(su)) > 1e-3 * np.max(np.abs(base["y_uff"][:50]))     # the mode matters
-        assert np.allclose(du, su, rtol=0, atol=1e-9 * np.max(np.abs(su)))
-        assert np.allclose(dr, sr, rtol=0, atol=1e-9 * np.max(np.abs(sr)))
-    # the designer's own loop given as the base: the same maps
-    m2 = blind_pes_maps(plant, ctrl, H, freqs, gains, base=base)
-    assert all(np.array_equal(a, b) for p, q in zip(maps, m2) for a, b in zip(p, q))
-
-
 def _fresh(code: str, tmp_path, **env_extra):
     env = {k: v for k, v in os.environ.items() if k not in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS",
                                                             "MKL_NUM_THREADS", "VECLIB_MAXIMUM_THREADS")}

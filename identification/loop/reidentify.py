@@ -110,8 +110,9 @@ def _relinearised(F, plant: ModalPlant, fit: Data, same: bool, st: LoopSettings,
     """A candidate whose absence the identification absorbed into the linear part (an amplifier
     lag: extra delay and a damped "mode", with the other modes bent around them): its fit on
     that linear part ``plant`` is also tried with the linear part identified again with it
-    (:func:`_identified_again`).  That variant is the candidate only if its output error on the
-    fit data is below both the fit on ``plant``'s linear part and ``plant`` identified again
+    (:func:`_identified_again`).  That variant is the candidate only if the rate of its output
+    error on the fit data (first difference within windows, :meth:`Windows.rate`: the lag's
+    signature) is below both the fit on ``plant``'s linear part and ``plant`` identified again
     without the candidate (the control: the gain must come from the candidate, not from
     identifying again)."""
     new = _identified_again(F.plant, fit, same, st)
@@ -123,7 +124,7 @@ def _relinearised(F, plant: ModalPlant, fit: Data, same: bool, st: LoopSettings,
     sse = {"new": rate_sse(new), "old": rate_sse(F.plant)}
     ctrl = _identified_again(plant, fit, same, st) if sse["new"] < sse["old"] else None
     sse["control"] = rate_sse(ctrl) if ctrl is not None else float("inf")
-    n = fit.n
+    n = max(fit.windows.rate(np.zeros(fit.n))[1].n_samples, 1)     # samples of the rate (one fewer per window)
     say(f"  {F.effect}: fit rate rms {np.sqrt(sse['old'] / n):.4g} on the identified linear part, "
         f"{np.sqrt(sse['new'] / n):.4g} with it identified again (identified again without it: "
         f"{np.sqrt(sse['control'] / n):.4g})")

@@ -21,9 +21,12 @@ the step settles, the three older terms are quiet).  So one QP per designer serv
 :class:`AccelStepQP` is the condensed QP on the set's closed-loop maps (:func:`seekopt.design.predict.set_loop_maps`),
 built for at most ``nmax`` samples and solved per ``N`` through the problem's solver chain:
 
-* settle band: ``|e_i(k)| <= beta band`` for ``k >= N`` on every plant ``i``; on the nominal plant
-  ``<= quiet beta band`` from ``N + quiet_after`` on (the older terms of the sum; the seek is verified on
-  the design plant by simulation, the other plants of the set carry the step's band only);
+* settle band: ``|e_0(k)| <= beta band`` for ``k >= N`` on the nominal plant, ``<= quiet beta band`` from
+  ``N + quiet_after`` on (the older terms of the sum; the seek is verified on the design plant by
+  simulation); ``|e_i(k)| <= beta band`` from ``N + set_lag`` on the other plants of the set (a seek's
+  error is the four-term sum, whose older terms' slow tails on the set's gain corners already hold the
+  set's settle later than the nominal's: :data:`seekopt.design.longseek_steps.ACCEL_SET_LAG`; the plan
+  predicts every plant's settle of the sum);
 * total current (every sub-step, every plant): within ``[(S_i - lim) / 2, (S_i + lim) / 2]`` with ``S_i =
   I0 k0 / k0_i`` the plant's steady current and ``lim = gamma Imax - |bias|``: a transition, its mirror and
   the doubled one of a seek without coast (``n = m``) then stay within ``lim``;
@@ -134,17 +137,19 @@ class AccelStepQP:
     """Condensed QP of an acceleration step of at most ``nmax`` samples (built once, solved per ``N``).
 
     ``x = [v, w, delta]``: ``u = Imax v`` for ``k < N`` and ``I0`` after; ``r = R(u) + w + delta`` (``w`` on
-    ``k < N``).
+    ``k < N``).  ``set_lag`` [samples]: the set's plants (all but the first map) are held in the band from
+    ``N + set_lag`` on (module notes).
     """
 
     def __init__(self, maps, k0s, nmax, horizon, k0, fs, delay_samples, imax, i0, band, nlo, settings,
-                 rho=1e-2, rho_w=1e-3, quiet=0.1, quiet_after=32, hf=None):
+                 rho=1e-2, rho_w=1e-3, quiet=0.1, quiet_after=32, hf=None, set_lag=0):
         from seekopt.design.qp import pes_row_samples, toeplitz_rows
-        from seekopt.design.solvers import SolverChain, dm
+        from seekopt.design.solvers import SolverChain
         t0 = time.perf_counter()
         N, H, L = int(nmax), int(horizon), maps[0].L
         self.N, self.H, self.imax, self.i0, self.band = N, H, float(imax), float(i0), float(band)
         self.quiet, self.quiet_after = float(quiet), int(quiet_after)
+        self.set_lag = int(set_lag)
         self.c = k0 / fs ** 2
         self.delay = float(delay_samples)
         self.steady = np.array([i0 * k0 / k for k in k0s])        # S_i [A]
@@ -186,7 +191,7 @@ class AccelStepQP:
         P[:N, :N] = 2 * rho * D.T @ D
         P[N:2 * N, N:2 * N] = 2 * rho_w * D.T @ D
         self._tail = np.nonzero((self.kind == "pes") & (self.plant == 0))[0]
-        self._P0, self._A_dm, self._dm = P + 2e-9 * np.eye(nv), dm(A), dm
+        self._P0 = P + 2e-9 * np.eye(nv)      # numpy data: the chain's zero-copy path (no DM round trip)
         self.m = A.shape[0]
         self.solver = SolverChain(nv, self.m, settings.chain, settings.options)
         self.violation_tol = float(settings.violation_tol)
@@ -199,6 +204,7 @@ class AccelStepQP:
         N, m, b = self.N, self.m, self.b
         lba, uba = np.full(m, -np.inf), np.full(m, np.inf)
         pes = (self.kind == "pes") & (self.sample >= nseek)
+        pes &= (self.plant == 0) | (self.sample >= nseek + self.set_lag)
         lba[pes], uba[pes] = -beta, beta
         far = pes & (self.sample >= nseek + self.quiet_after) & (self.plant == 0)
         lba[far], uba[far] = -self.quiet * beta, self.quiet * beta
@@ -226,7 +232,7 @@ class AccelStepQP:
                 return "non-finite answer"
             viol = constraint_violation(self.A, x, lba, uba, lbx, ubx)
             return f"constraint violation {viol:.2g}" if viol > self.violation_tol else ""
-        return self.solver.solve(self._dm(P), g, self._A_dm, lba, uba, lbx, ubx, x0=x0, check=check)
+        return self.solver.solve(P, g, self.A, lba, uba, lbx, ubx, x0=x0, check=check)
 
     def unpack(self, x, nseek):
         """``(u [A], reference offset [track] over ``nseek`` samples, delta [track])``."""

@@ -66,18 +66,19 @@ small QPs on the problem's set, kept) gives every such seek as four shifted copi
    pay the step and the reference first), from ``c I0 COMPOSE_FROM_SAMPLES^2`` (14 samples at ``I0``)
    to ``long_from_track`` the composition (``n >= 14``) is taken when its predicted settle is within
    ``SETTLE_RATIO = 1.15`` of
-   ``T_bb + O``, ``O`` the settle overhead of the rest-to-rest design of ``compare_from_track`` tracks
-   (one cheap design per designer, kept): the rest-to-rest overhead grows with the length or stays flat
-   (robust sweep set, samples: 200k TPI 27.6 at 10 samples at ``I0``, 29.2 at 20, 27.6 at 25.5; 500k 36.6,
-   38.2, 40.2; 1000k 41.6, 49.8, 52.1, 50.3), so ``T_bb + O`` is mostly a low estimate of the
-   rest-to-rest settle (one exception measured in the 9 x 20 grid: 300k TPI, 2069 tracks, 1.155x).
+   ``T_bb + O - OVERHEAD_SPREAD``, ``O`` the settle overhead of the rest-to-rest design of
+   ``compare_from_track`` tracks (one cheap design per designer, kept): the rest-to-rest overhead mostly
+   grows with the length or stays flat (robust sweep set, samples: 200k TPI 27.6 at 10 samples at ``I0``,
+   29.2 at 20, 27.6 at 25.5; 500k 36.6, 38.2, 40.2; 1000k 41.6, 49.8, 52.1, 50.3) but fell 3 samples at
+   300k TPI (33.6 -> 30.65 at 2069 tracks), so ``T_bb + O - 3`` is a low estimate of the rest-to-rest
+   settle on every cell measured.
    Why: the rest-to-rest QPs near ``n_floor`` have 80-110 samples, and robust ones at high track density
    took 5-282 s CPU each (``docs/results_sweep_scaling.md``), while the composition settles within
    1.00-1.08x of them there (``docs/results_longseek.md``);
 3. else the rest-to-rest QP (:class:`~seekopt.design.designer.SeekDesigner`), its peak velocity checked
    against ``vmax``.
 
-On the bundled drive ``long_from_track`` is 1627 tracks (``N_J`` = 30 nominal, 46 robust); when no plan
+On the bundled drive ``long_from_track`` is 1627 tracks (``N_J`` = 30 nominal, 39 robust); when no plan
 near the bang-bang ``n`` settles on every plant (none measured), the rest-to-rest QP designs the seek.
 
 The velocity limit and the stroke from the plant's metadata: :mod:`seekopt.design.longseek_spec`.
@@ -87,13 +88,12 @@ from __future__ import annotations
 import math
 import time
 
-import numpy as np
-
 from seekopt.design import guard as _guard
 from seekopt.design.accel_step import AccelStep, plan_seek
 from seekopt.design.longseek_spec import (I0_FRACTION, LongSeekError, LongSeekSpec, stroke_from_plant,
                                           t_accel_coast_decel, vmax_from_plant)
-from seekopt.design.longseek_steps import ACCEL_QUIET, StepDesigns
+from seekopt.design.longseek_build import SeekBuild, rigid_peak_velocity
+from seekopt.design.longseek_steps import ACCEL_QUIET, ACCEL_SET_LAG, StepDesigns
 from seekopt.design.velocity_step import VelocityStep
 
 #: Bang-bang samples at ``I0`` of the reference rest-to-rest seek of the dispatch (module notes, rule 2):
@@ -105,12 +105,18 @@ COMPARE_SAMPLES = 10
 COMPOSE_FROM_SAMPLES = 14
 #: Settle allowed to a composition below ``long_from_track`` against the rest-to-rest design (issue 12).
 SETTLE_RATIO = 1.15
+#: Samples by which a robust rest-to-rest design's overhead (settle - T_bb) may fall below the reference
+#: design's (:meth:`LongSeekDesigner.rest_to_rest_overhead`) at a longer seek: the overhead is a settle counted
+#: in whole samples less a fractional T_bb, and the set's arrival (gain corners, delay) does not grow it
+#: monotonically with the length.  Largest drop measured on the robust sweep set: 300k TPI, 33.6 samples at
+#: 10 samples at ``I0`` against 30.65 at 2069 tracks (600k: 37.6 against 37.5; 200k/500k/1000k: none).
+OVERHEAD_SPREAD = 3.0
 
 __all__ = ["LongSeekSpec", "VelocityStep", "AccelStep", "LongSeekDesigner", "LongSeekError", "vmax_from_plant",
-           "stroke_from_plant", "t_accel_coast_decel", "I0_FRACTION"]
+           "stroke_from_plant", "t_accel_coast_decel", "I0_FRACTION", "OVERHEAD_SPREAD", "rigid_peak_velocity"]
 
 
-class LongSeekDesigner(StepDesigns):
+class LongSeekDesigner(StepDesigns, SeekBuild):
     """Long seeks for one :class:`seekopt.design.problem.SeekProblem` (module notes); build once, design many.
 
     ``LongSeekDesigner(problem, spec)``, or the keyword form ``LongSeekDesigner(plant, controller, imax,
@@ -156,7 +162,7 @@ class LongSeekDesigner(StepDesigns):
         self._short = short_designer
         self._steps: dict = {}
         self._accel: AccelStep | None = None
-        self.accel_quiet = ACCEL_QUIET
+        self.accel_quiet, self.accel_set_lag = ACCEL_QUIET, ACCEL_SET_LAG
         self._maps, self._maps_h = None, 0
         self._nominal = None
         self._r2r_over = None
@@ -185,11 +191,18 @@ class LongSeekDesigner(StepDesigns):
             return abs(K) >= self.long_from_track()
         return abs(K) >= self.accel_step().accel_track * COMPOSE_FROM_SAMPLES ** 2
 
+    def min_accel_samples(self) -> int:
+        """Fewest samples at ``I0`` of any composition of this designer: ``COMPOSE_FROM_SAMPLES`` with
+        ``LongSeekSpec.compare_below_long``, else :meth:`n_floor`.  The older terms of a composition's error
+        are at least this many samples older than its arrival: the acceleration step's nominal quiet rows
+        start there (:class:`~seekopt.design.accel_step.AccelStepQP` ``quiet_after``)."""
+        return COMPOSE_FROM_SAMPLES if self.spec.compare_below_long else self.n_floor()
+
     def _long_lower_bound(self) -> float:
         """``c I0_FRACTION lim n^2`` [track] (``n``: ``COMPOSE_FROM_SAMPLES`` with
         ``LongSeekSpec.compare_below_long``, else :meth:`n_floor`): no shorter seek is built from the step
         (``I0 <= I0_FRACTION lim``)."""
-        n = COMPOSE_FROM_SAMPLES if self.spec.compare_below_long else self.n_floor()
+        n = self.min_accel_samples()
         return self.plant.k0 / self.fs ** 2 * I0_FRACTION * self._lim() * n ** 2
 
     def compare_from_track(self) -> float:
@@ -218,8 +231,8 @@ class LongSeekDesigner(StepDesigns):
     def _plan(self, K: float):
         """The composition's plan (:func:`~seekopt.design.accel_step.plan_seek`) under the dispatch rule
         (module notes, rule 2), or None: from :meth:`long_from_track` on any plan; below it, a plan whose
-        predicted settle is within ``SETTLE_RATIO (T_bb + rest_to_rest_overhead())``."""
-        lim = 0.5 * (1 + self.gamma) * self.imax - abs(self.plant.bias_a)
+        predicted settle is within ``SETTLE_RATIO (T_bb + rest_to_rest_overhead() - OVERHEAD_SPREAD)``."""
+        lim = self._composition_limit()
         st = self.accel_step()
         if abs(K) >= self.long_from_track():
             return plan_seek(st, K, self.n_floor(), self._n_vmax(), self.settle, current_limit_a=lim)
@@ -227,7 +240,7 @@ class LongSeekDesigner(StepDesigns):
         if plan is None:
             return None
         from seekopt.design.profiles import t_bang_bang
-        r2r = t_bang_bang(K, self.plant.k0, self.imax) * self.fs + self.rest_to_rest_overhead()
+        r2r = t_bang_bang(K, self.plant.k0, self.imax) * self.fs + self.rest_to_rest_overhead() - OVERHEAD_SPREAD
         return plan if plan[2] <= SETTLE_RATIO * r2r else None
 
     def _n_vmax(self) -> float:
@@ -333,73 +346,8 @@ class LongSeekDesigner(StepDesigns):
         ``n_floor`` samples at ``I0`` on), whatever the dispatch."""
         K = self.check_seek(tracks)
         t0, fresh = time.process_time(), self._accel is None
-        lim = 0.5 * (1 + self.gamma) * self.imax - abs(self.plant.bias_a)
+        lim = self._composition_limit()
         plan = plan_seek(self.accel_step(), K, self.n_floor(), self._n_vmax(), self.settle, current_limit_a=lim)
         if plan is None:
             raise LongSeekError(f"no acceleration-step plan settles the seek of {K:g} tracks on every plant")
         return self._design_accel(K, *plan, t0=t0, fresh=fresh)
-
-    def _design_velocity(self, K: float, step: VelocityStep, t0: float):
-        """The seek of ``K`` tracks from ``step`` and its mirror (module notes), verified by simulation."""
-        from seekopt.design.designer import DesignError, DesignResult
-        from seekopt.design.metrics import evaluate_profile
-        from seekopt.design.profiles import Profile
-        vmax = self.spec.vmax_track_s
-        u, r, m, s = step.compose(K)
-        meta = {"plant_hash": self.plant.hash(), "controller_hash": self.controller.hash(),
-                "design_objective": "long_seek/accelerate-coast-arrive", "coast_samples": m,
-                "coast_velocity_track_s": s * step.velocity_track_s, "vmax_track_s": vmax,
-                "step_samples": step.n, "robust": step.meta["robust"], "design_settle_samples": m + step.settle_samples}
-        prof = Profile(np.r_[u, 0.0], np.r_[r, K], self.fs, K, self.imax, self.settle, "long_seek",
-                       int(np.max(np.nonzero(u)[0]) + 1), meta)
-        metrics = evaluate_profile(self.plant, self.controller, prof, settle=self.settle)
-        if not metrics.peak_current_a <= self.imax * (1 + 1e-9):
-            raise DesignError(f"long seek of {K:g} tracks exceeds Imax in simulation ({metrics.peak_current_a:.4g} A)")
-        if not metrics.settle_time_s * self.fs <= m + step.settle_samples + 1 + 1e-9:
-            raise DesignError(f"long seek of {K:g} tracks does not settle by sample {m + step.settle_samples}")
-        prof.meta["design_status"] = "verified"
-        return DesignResult(prof, metrics, "verified", time.process_time() - t0, self.solver,
-                            "long_seek", settle_samples=m + step.settle_samples,
-                            n_solves=int(step.meta["qp_solves"]))
-
-
-    def _design_accel(self, K: float, n: int, m: int, k_pred: int, k_set: int, t0: float, fresh: bool):
-        """The seek of ``K`` tracks from four acceleration steps (module notes), verified by simulation."""
-        from seekopt.design.designer import DesignError, DesignResult
-        from seekopt.design.metrics import evaluate_profile
-        from seekopt.design.profiles import Profile
-        st = self.accel_step()
-        u, r, s = st.compose(K, n, m)
-        vpk = rigid_peak_velocity(u, self.plant.k0, self.fs)
-        vmax = self.spec.vmax_track_s
-        if vmax is not None and vpk > vmax * (1 + 1e-9):
-            raise DesignError(f"long seek of {K:g} tracks: rigid velocity {vpk:.4g} track/s above vmax")
-        meta = {"plant_hash": self.plant.hash(), "controller_hash": self.controller.hash(),
-                "design_objective": "long_seek/accelerate-coast-arrive (acceleration steps)",
-                "accel_samples": n, "coast_samples": m - n, "coast_velocity_track_s": vpk, "vmax_track_s": vmax,
-                "step_samples": st.n, "robust": self.robust.to_string() if self.robust else "none",
-                "design_settle_samples": k_pred, "set_settle_samples_predicted": k_set,
-                "peak_rigid_velocity_track_s": vpk}
-        prof = Profile(np.r_[u, 0.0], np.r_[r, K], self.fs, K, self.imax, self.settle, "long_seek",
-                       int(np.max(np.nonzero(u)[0]) + 1), meta)
-        metrics = evaluate_profile(self.plant, self.controller, prof, settle=self.settle)
-        if not metrics.peak_current_a <= self.imax * (1 + 1e-9):
-            raise DesignError(f"long seek of {K:g} tracks exceeds Imax in simulation ({metrics.peak_current_a:.4g} A)")
-        if not metrics.settle_time_s * self.fs <= k_pred + 1 + 1e-9:
-            raise DesignError(f"long seek of {K:g} tracks does not settle by sample {k_pred} "
-                              f"({metrics.settle_time_s * self.fs:.1f})")
-        prof.meta["design_status"] = "verified"
-        guard = None
-        if self.guard_bands:       # not a constraint of the step (accel_step notes): measured and reported
-            guard = _guard.guard_report(self.plant, self.controller, prof, self.guard_bands, self.settle,
-                                        curve=self.guard_curve)
-            prof.meta.update(guard.to_meta())
-        n_solves = int(st.meta["qp_solves"]) if fresh else 0
-        return DesignResult(prof, metrics, "verified", time.process_time() - t0, self.solver,
-                            "long_seek", settle_samples=k_pred, n_solves=n_solves, set_settle_samples=k_set,
-                            guard=guard)
-
-
-def rigid_peak_velocity(current_a, k0: float, fs: float) -> float:
-    """Largest ``|rigid velocity|`` [track/s] of a feedforward (ZOH double integrator)."""
-    return float(np.max(np.abs(np.cumsum(current_a)))) * k0 / fs

@@ -173,8 +173,12 @@ class EffectAwareDesigner:
             kt_maps = set_loop_maps([p.linear_part() for p in self.kt_plants], self.controller, maps[0].horizon) \
                 if self.kt_plants else []
             if len(self.linear.plants) > 1 or kt_maps:
-                prev = max([k for k in self.sizes if k < c], default=0)
-                self._spreads[c] = RobustSpread(maps + kt_maps, c, c + self.tail, self.settle, nmax_prev=prev,
+                # the shortest seek of this class settles at prev - tin + 1 (the class holds n + tin): the set's
+                # band rows start there, not after the previous class's input length (that left up to tin
+                # samples after such a seek without robust rows; the Kt drive's robust K = 200 from track 12000:
+                # 5.28 -> 1.98 band at 45 samples, 2.35 band at 58 from the gap)
+                prev = max([k for k in self.sizes if k < c], default=0) - self.tin
+                self._spreads[c] = RobustSpread(maps + kt_maps, c, c + self.tail, self.settle, nmax_prev=max(prev, 0),
                                                 stride=self.linear._stride(c), current_only=len(kt_maps))
             # the linear designer's unmodelled-mode guard: same bands, rows and horizon, on the nominal
             # linear loop

@@ -2,7 +2,6 @@
 each returns the value in its canonical type or raises :class:`ProblemError` (one line naming the setting).
 
 Also :func:`check_closed_loop` (the stability check every plant of a set passes before anything is
-built).  Also :func:`check_closed_loop` (the stability check every plant of a set passes before anything is
 built).  Kept apart from :mod:`seekopt.design.problem` so the problem module holds the data and its JSON form only.
 """
 from __future__ import annotations
@@ -11,10 +10,7 @@ import math
 
 import numpy as np
 
-from seekopt.drive.loopcheck import closed_loop_poles
-
-import numpy as np
-
+from identification.model.plant import ModalPlant
 from seekopt.drive.loopcheck import closed_loop_poles
 
 __all__ = ["ProblemError", "check_closed_loop", "positive", "fraction", "nonnegative_s", "samples_within"]

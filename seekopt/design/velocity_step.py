@@ -113,7 +113,7 @@ class StepQP:
                  settings, rho=1e-2, rho_w=1e-3, quiet=0.2, quiet_after=32):
         from seekopt.design.profiles import rigid_position_kernel
         from seekopt.design.qp import pes_row_samples, toeplitz_rows
-        from seekopt.design.solvers import SolverChain, dm
+        from seekopt.design.solvers import SolverChain
         t0 = time.perf_counter()
         N, H, L = int(nmax), int(horizon), maps[0].L
         self.N, self.H, self.imax, self.band, self.bias = N, H, float(imax), float(band), abs(float(bias))
@@ -161,7 +161,7 @@ class StepQP:
         if tail.size:
             P += 2.0 / tail.size * A[tail].T @ A[tail]
         P += 2e-9 * np.eye(2 * N)
-        self._H, self._A = dm(P), dm(A)
+        self._H = P                      # numpy data: the chain's zero-copy path (no DM round trip)
         self.m = A.shape[0]
         self.solver = SolverChain(2 * N, self.m, settings.chain, settings.options)
         self.violation_tol = float(settings.violation_tol)
@@ -200,7 +200,7 @@ class StepQP:
             viol = constraint_violation(self.A, x, lba, uba, lbx, ubx)
             return f"constraint violation {viol:.2g}" if viol > self.violation_tol else ""
         # numerical trouble moves on to the fallback solvers before anything is called infeasible
-        return self.solver.solve(self._H, np.zeros(2 * N), self._A, lba, uba, lbx, ubx, x0=x0, check=check)
+        return self.solver.solve(self._H, np.zeros(2 * N), self.A, lba, uba, lbx, ubx, x0=x0, check=check)
 
     def unpack(self, x, nseek):
         """``(u [A], w [track])`` over ``nseek`` samples; ``r = reference(u, w)``."""
