@@ -341,7 +341,8 @@ class SeekQP:
         band rows from this sample on (at most ``nseek``; the set's other plants from ``nseek``).
         """
         aK = abs(K)
-        g, lba, uba, lbx, ubx = self.bounds(K, nseek, beta, gamma, hf_tol, slew_a_per_s, nominal_from)
+        g, lba, uba, lbx, ubx = (a.copy() for a in self.bounds(K, nseek, beta, gamma, hf_tol, slew_a_per_s,
+                                                                nominal_from))     # writeable, as numeric()
         H = self._dm["P0"] + aK * self._dm["P1"] + aK * aK * self._dm["P2"]
         A = self._dm["A0"] + aK * self._dm["A1"]
         return H, g, A, lba, uba, lbx, ubx
@@ -370,9 +371,11 @@ class SeekQP:
 
     def numeric(self, K: float, nseek: int, beta: float | None, gamma: float, hf_tol: float | None,
                 slew_a_per_s: float | None = None, nominal_from: int | None = None):
-        """:meth:`data` as numpy arrays ``(H, g, A, lba, uba, lbx, ubx)`` (no casadi copies)."""
+        """:meth:`data` as numpy arrays ``(H, g, A, lba, uba, lbx, ubx)`` (no casadi copies; the bounds are
+        writeable copies of :meth:`bounds`' kept arrays: the ``daqp`` package reads only writeable buffers)."""
         H, A = self.matrices(K)
-        g, lba, uba, lbx, ubx = self.bounds(K, nseek, beta, gamma, hf_tol, slew_a_per_s, nominal_from)
+        g, lba, uba, lbx, ubx = (a.copy() for a in self.bounds(K, nseek, beta, gamma, hf_tol, slew_a_per_s,
+                                                                nominal_from))
         return H, g, A, lba, uba, lbx, ubx
 
     def bounds(self, K: float, nseek: int, beta: float | None, gamma: float, hf_tol: float | None,
