@@ -294,13 +294,15 @@ def test_rest_to_rest_up_to_keeps_the_qp_above_long_from_track(plant, ctrl, free
 
 @pytest.mark.slow
 @pytest.mark.parametrize("tpi", [300e3, 600e3])
-def test_composition_below_long_from_track_settles_within_1_15_of_rest_to_rest(plant, tpi):
-    """Robust sweep set at 300k and 600k TPI: a seek between ``compare_from_track`` and ``long_from_track``
-    (2069 tracks, 17.6 / 14.7 samples at I0) is built from the acceleration step, because its predicted
-    settle is within 1.15 (T_bb + the reference rest-to-rest design's overhead - OVERHEAD_SPREAD); the
-    rest-to-rest design of the same seek settles no more than 1.15x sooner (measured 81 against 71 samples
-    at 300k, where the reference overhead overestimates this seek's by 3 samples; 72 against 66 at 600k)."""
-    from seekopt.design.longseek import OVERHEAD_SPREAD, SETTLE_RATIO
+def test_seek_below_long_from_track_holds_1_15_of_rest_to_rest_on_the_set(plant, tpi):
+    """Robust sweep set at 300k and 600k TPI, a seek between ``compare_from_track`` and ``long_from_track``
+    (2069 tracks, 17.6 / 14.7 samples at I0): whichever way it is designed, it settles within 1.15x the
+    rest-to-rest design on the design plant AND its predicted worst over the set is within 1.15x the
+    rest-to-rest design's set settle.  Measured (2026-11-28): the composition would settle in 81 / 72
+    samples on the design plant (rest-to-rest 71 / 66) but its worst over the set is 120 / 120 samples
+    (rest-to-rest 71 / 67): the dispatch rule, comparing the set too, keeps the rest-to-rest design; the
+    rule that compared the design plant alone took the composition (1.69x / 1.79x on the set)."""
+    from seekopt.design.longseek import SETTLE_RATIO
     from seekopt.evaluate.sweep_config import controller_at_tpi
     from seekopt.evaluate.sweep_cell import designer_factory
     p = plant.at_tpi(tpi)
@@ -310,11 +312,11 @@ def test_composition_below_long_from_track_settles_within_1_15_of_rest_to_rest(p
     K = 2069.0
     assert ls.compare_from_track() < K < ls.long_from_track()
     res = ls.design(K)
-    assert res.profile.kind == "long_seek" and res.metrics.settled and res.metrics.peak_current_a <= IMAX
-    fs = ls.fs
-    assert res.settle_samples <= SETTLE_RATIO * (t_bang_bang(K, p.k0, IMAX) * fs + ls.rest_to_rest_overhead()
-                                                 - OVERHEAD_SPREAD)
+    assert res.metrics.settled and res.metrics.peak_current_a <= IMAX
     r2r = ls.short_designer().design(K)
     assert res.metrics.settle_time_s <= SETTLE_RATIO * r2r.metrics.settle_time_s
+    worst = (res.profile.meta["set_settle_samples_predicted"] if res.profile.kind == "long_seek"
+             else res.set_settle_samples)
+    assert worst <= SETTLE_RATIO * r2r.set_settle_samples
     # a seek shorter than the reference stays with the rest-to-rest QP
     assert ls.design(0.9 * ls.compare_from_track()).profile.kind == "optimal"

@@ -45,7 +45,7 @@ from seekopt.design.problem import ProblemError, SeekProblem, check_closed_loop
 from seekopt.design.profiles import reference_from_model, t_bang_bang
 from seekopt.design.result import DesignError, DesignInfeasible, DesignResult, SolveStats
 from seekopt.design.settle_search import SettleSearch
-from seekopt.design.solvers import DAQP_PKG, SolverChain
+from seekopt.design.solvers import DAQP_PKG, PIQP, SolverChain
 from seekopt.design.verification import packaged_design, played_design, verified_design
 from seekopt.design.working_set import WorkingSetQP
 
@@ -202,7 +202,8 @@ class SeekDesigner(SettleSearch):
             # cheaper there, also warm; slower on 22-plant sets)
             self._ws[qp] = WorkingSetQP(qp, lambda n, m: SolverChain(n, m, s.chain, s.options,
                                                                      builds=self._count_solver),
-                                        pad=s.qp_solver != DAQP_PKG, phase1_first=len(self.plants) <= 3)
+                                        pad=s.qp_solver != DAQP_PKG,
+                                        phase1_first=len(self.plants) <= 3 and s.chain[1:2] != (PIQP,))
         return self._ws[qp]
 
     def _solve(self, qp: _qp.SeekQP, K, n, beta, stats: SolveStats, warm=None, epigraph=False, confirm=True,

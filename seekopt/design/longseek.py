@@ -211,11 +211,14 @@ class LongSeekDesigner(StepDesigns, SeekBuild):
         rest-to-rest settle predicted from it (:meth:`rest_to_rest_overhead`)."""
         return self.accel_step().accel_track * COMPARE_SAMPLES ** 2
 
-    def rest_to_rest_overhead(self) -> float:
-        """Settle overhead [samples] (settle - T_bb) of the rest-to-rest design of :meth:`compare_from_track`
-        tracks on the design plant (designed once by the short designer, kept).  The overhead of the
+    def rest_to_rest_overhead(self) -> tuple:
+        """Settle overheads [samples] ``(nominal, set)`` (settle - T_bb) of the rest-to-rest design of
+        :meth:`compare_from_track` tracks (designed once by the short designer, kept): the design plant's
+        (its simulated settle) and the set's (the sample every plant of the set holds the band from,
+        ``DesignResult.set_settle_samples``; equal to the nominal's on one plant).  The overhead of the
         rest-to-rest designs grows with the length or stays flat (robust sweep set, module notes), so
-        ``T_bb + overhead`` is a low estimate of a longer seek's rest-to-rest settle."""
+        ``T_bb + overhead`` is a low estimate of a longer seek's rest-to-rest settle.  ``(-inf, -inf)``
+        when the reference does not design (no composition below :meth:`long_from_track`)."""
         if self._r2r_over is None:
             from seekopt.design.profiles import t_bang_bang
             from seekopt.design.result import DesignError, DesignInfeasible
@@ -223,15 +226,19 @@ class LongSeekDesigner(StepDesigns, SeekBuild):
             try:
                 res = self.short_designer().design(K)
             except (DesignError, DesignInfeasible):      # nothing to compare with: no composition below
-                self._r2r_over = -math.inf               # long_from_track
+                self._r2r_over = (-math.inf, -math.inf)  # long_from_track
             else:
-                self._r2r_over = (res.metrics.settle_time_s - t_bang_bang(K, self.plant.k0, self.imax)) * self.fs
+                tbb = t_bang_bang(K, self.plant.k0, self.imax) * self.fs
+                self._r2r_over = (res.metrics.settle_time_s * self.fs - tbb, res.set_settle_samples - tbb)
         return self._r2r_over
 
     def _plan(self, K: float):
         """The composition's plan (:func:`~seekopt.design.accel_step.plan_seek`) under the dispatch rule
         (module notes, rule 2), or None: from :meth:`long_from_track` on any plan; below it, a plan whose
-        predicted settle is within ``SETTLE_RATIO (T_bb + rest_to_rest_overhead() - OVERHEAD_SPREAD)``."""
+        predicted settle is within ``SETTLE_RATIO (T_bb + overhead - OVERHEAD_SPREAD)`` of the rest-to-rest
+        design on the design plant AND over the set (its predicted worst against the reference's set
+        overhead, :meth:`rest_to_rest_overhead`): a robust composition whose worst case arrives much later
+        than a rest-to-rest design's would buy its speed with the drives the set stands for."""
         lim = self._composition_limit()
         st = self.accel_step()
         if abs(K) >= self.long_from_track():
@@ -240,8 +247,11 @@ class LongSeekDesigner(StepDesigns, SeekBuild):
         if plan is None:
             return None
         from seekopt.design.profiles import t_bang_bang
-        r2r = t_bang_bang(K, self.plant.k0, self.imax) * self.fs + self.rest_to_rest_overhead() - OVERHEAD_SPREAD
-        return plan if plan[2] <= SETTLE_RATIO * r2r else None
+        tbb = t_bang_bang(K, self.plant.k0, self.imax) * self.fs
+        o_nom, o_set = self.rest_to_rest_overhead()
+        ok = (plan[2] <= SETTLE_RATIO * (tbb + o_nom - OVERHEAD_SPREAD)
+              and plan[3] <= SETTLE_RATIO * (tbb + o_set - OVERHEAD_SPREAD))
+        return plan if ok else None
 
     def _n_vmax(self) -> float:
         v = self.spec.vmax_track_s
@@ -315,9 +325,11 @@ class LongSeekDesigner(StepDesigns, SeekBuild):
                 try:
                     return self._design_accel(K, *plan, t0=t0, fresh=fresh)
                 except DesignError:
-                    if not (on_set and self.needs_coast(K)):
+                    if on_set and self.needs_coast(K):
+                        coast = True         # the velocity step to vmax, as on one plant
+                    elif abs(K) >= self.long_from_track():
                         raise
-                    coast = True             # the velocity step to vmax, as on one plant
+                    # below long_from_track the rest-to-rest designer takes the seek (below)
         if on_set and not coast:
             coast = self.needs_coast(K)      # no plan (e.g. vmax below the step's floor): velocity step
         if not coast:

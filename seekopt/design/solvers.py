@@ -11,6 +11,10 @@ All solvers take ``min 1/2 x'Hx + g'x  s.t. lba <= A x <= uba, lbx <= x <= ubx``
   ill-conditioned Hessians where both daqps cycle;
 * :class:`ConicQP` -- ``casadi.conic`` with a QP plugin (``daqp``, ``qpoases``, ``highs``,
   ``osqp``, ``proxqp``, ``qrqp``), built once for a fixed size;
+* :class:`PiqpQP` (``piqp``, optional package) -- PIQP's dense interface: no faster than the
+  ``daqp`` package on these QPs, but its "infeasible" carries multipliers that usually pass the Farkas
+  check (``proven``), so as the first fallback it proves the lengths the package reports infeasible
+  without a certificate (:mod:`seekopt.design.piqp_solver`);
 * :class:`IpoptQP` -- the same problem as an ``Opti`` + Ipopt NLP (``hessian_constant``,
   ``jac_c_constant``, ``jac_d_constant`` = yes) exported once with ``opti.to_function``;
 * :class:`SolverChain` -- a primary solver and fallbacks, built lazily: a solve that ends in
@@ -34,11 +38,12 @@ import numpy as np
 
 from seekopt.design.certificates import farkas_certificate, proves_infeasible  # noqa: F401
 from seekopt.design.daqp_solver import PROX_OPTIONS, DaqpQP, kkt_holds  # noqa: F401
+from seekopt.design.piqp_solver import PIQP, PiqpQP, piqp_available  # noqa: F401
 from seekopt.design.qp_status import (DAQP_PKG, DAQP_PROX, QPSolution, QPStatus, _nan_safe, _quiet_stdout,  # noqa: F401
                                       classify_status, dm)
 
 __all__ = ["QPStatus", "classify_status", "QPSolution", "ConicQP", "DaqpQP", "IpoptQP", "make_qp_solver",
-           "SolverChain", "QP_PLUGINS", "DAQP_PKG", "DAQP_PROX", "QP_SOLVERS", "dm", "kkt_holds", "proves_infeasible", "farkas_certificate",
+           "SolverChain", "QP_PLUGINS", "DAQP_PKG", "DAQP_PROX", "PIQP", "PiqpQP", "piqp_available", "QP_SOLVERS", "dm", "kkt_holds", "proves_infeasible", "farkas_certificate",
            "constraint_violation", "violation_of"]
 
 #: ``casadi.conic`` plugins the designer accepts.
@@ -53,7 +58,9 @@ FALLBACK_LIMIT_S = 2.0
 #: 1000 recalculations it stops after 0.6 s CPU.
 QPOASES_NWSR_PER_DIM = 2
 #: Every solver name :func:`make_qp_solver` accepts (``DAQP_PKG``: :class:`DaqpQP`).
-QP_SOLVERS = (DAQP_PKG, DAQP_PROX) + QP_PLUGINS + ("ipopt",)
+QP_SOLVERS = (DAQP_PKG, DAQP_PROX, PIQP) + QP_PLUGINS + ("ipopt",)
+#: Solvers that take any row count (never padded to the chain's size).
+ANY_SIZE = (DAQP_PKG, DAQP_PROX, PIQP)
 
 
 class ConicQP:
@@ -226,8 +233,10 @@ def violation_of(ax, size, x, lba, uba, lbx, ubx) -> float:
 
 
 def make_qp_solver(n: int, m: int, solver: str = DAQP_PKG, options: dict | None = None):
-    """:class:`DaqpQP` for ``solver="daqp_pkg"`` (and, proximal, ``"daqp_prox"``), :class:`IpoptQP` for ``"ipopt"``, else :class:`ConicQP`
-    with that plugin."""
+    """:class:`DaqpQP` for ``solver="daqp_pkg"`` (and, proximal, ``"daqp_prox"``), :class:`PiqpQP` for ``"piqp"``
+    (:class:`ImportError` without the package), :class:`IpoptQP` for ``"ipopt"``, else :class:`ConicQP` with that plugin."""
+    if solver == PIQP:
+        return PiqpQP(n, m, options)
     if solver == DAQP_PKG:
         return DaqpQP(n, m, options)
     if solver == DAQP_PROX:
@@ -306,7 +315,7 @@ class SolverChain:
             solver = self.get(name)
             if i == 0 and lam0 is not None and getattr(solver, "warm_duals", False):
                 sol = solver.solve(*data, x0=x0, lam_a0=lam0[0], lam_x0=lam0[1])
-            elif name not in (DAQP_PKG, DAQP_PROX) and isinstance(data[2], np.ndarray) and len(data[2]) < self.m:
+            elif name not in ANY_SIZE and isinstance(data[2], np.ndarray) and len(data[2]) < self.m:
                 sol = self._padded(solver, data, x0 if i == 0 else None)
             else:
                 sol = solver.solve(*data, x0=x0 if i == 0 else None)

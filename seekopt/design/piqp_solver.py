@@ -1,0 +1,107 @@
+"""PIQP (proximal interior point, ``piqp`` on PyPI) on the dense design QP (:class:`PiqpQP`): a fallback
+whose "infeasible" comes with a verified Farkas certificate.
+
+Same problem form as the other solvers of :mod:`seekopt.design.solvers` (which builds it for the name
+``piqp``): ``min 1/2 x'Hx + g'x  s.t. lba <= A x <= uba, lbx <= x <= ubx``.
+
+Measured (``studies/qp_solvers.py``, the 229 nominal / 406 robust reduced QPs of a 13-length run on the
+truth plant): PIQP is no faster than the warm-started ``daqp`` package on the solves (1.2x / 2.6x its CPU),
+but it proved 32 of the 34 nominal and 50 of the 54 robust "infeasible" reduced QPs with multipliers that
+pass :func:`seekopt.design.certificates.proves_infeasible`, where the ``daqp`` package's multipliers prove
+none of them.  It is optional (``pip install seekopt[piqp]``): without the package, building it raises
+:class:`ImportError`.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from seekopt.design.certificates import proves_infeasible
+from seekopt.design.qp_status import QPSolution, QPStatus
+
+__all__ = ["PiqpQP", "PIQP", "piqp_available"]
+
+#: The solver name (:func:`seekopt.design.solvers.make_qp_solver`).
+PIQP = "piqp"
+
+
+def piqp_available() -> bool:
+    """True when the ``piqp`` package imports."""
+    try:
+        import piqp  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+class PiqpQP:
+    """PIQP's dense interface on a QP of ``n`` variables and any number of rows (set up per call).
+
+    Rows with ``lba == uba`` go to PIQP as equalities, the others as two-sided inequalities, the
+    variable bounds as its box.  Statuses: solved -> ``optimal``; primal infeasible -> ``infeasible``
+    with ``proven`` saying whether PIQP's row multipliers pass the Farkas check on the data (an
+    unproven one carries zero multipliers, as :class:`seekopt.design.daqp_solver.DaqpQP`'s); the
+    iteration limit -> ``iteration_limit``; anything else (numerics, dual infeasible, bad data) ->
+    ``numerical``.  Multipliers are returned in casadi's sign convention (> 0: upper bound active).
+    Cold starts only (an interior-point method): ``x0``, ``lam_a0``, ``lam_x0`` are ignored.
+
+    Parameters
+    ----------
+    n, m : int
+        Variables and rows (``m`` informative).
+    options : dict, optional
+        PIQP settings (``eps_abs``, ``eps_rel``, ``max_iter``, ...) over ``eps_abs=1e-9, eps_rel=0,
+        max_iter=500``.
+    """
+
+    name = PIQP
+    warm_duals = False
+
+    def __init__(self, n: int, m: int, options: dict | None = None):
+        import piqp
+        self._piqp = piqp
+        self.n, self.m, self.plugin = int(n), int(m), PIQP
+        self.settings = {"eps_abs": 1e-9, "eps_rel": 0.0, "max_iter": 500}
+        self.settings.update(options or {})
+
+    def solve(self, H, g, A, lba, uba, lbx, ubx, x0=None, lam_a0=None, lam_x0=None) -> QPSolution:
+        """Solve with numpy data (any row count)."""
+        piqp = self._piqp
+        H = np.asfortranarray(H, dtype=float)
+        A = np.asarray(A, dtype=float)
+        g = np.asarray(g, dtype=float).ravel()
+        lba, uba = np.asarray(lba, dtype=float).ravel(), np.asarray(uba, dtype=float).ravel()
+        lbx, ubx = np.asarray(lbx, dtype=float).ravel(), np.asarray(ubx, dtype=float).ravel()
+        n, m = len(g), len(A)
+        eq = lba == uba
+        iq = ~eq
+        t0, c0 = time.perf_counter(), time.process_time()
+        x, lam_a, lam_x = np.full(n, np.nan), np.full(m, np.nan), np.full(n, np.nan)
+        try:
+            s = piqp.DenseSolver()
+            for k, v in self.settings.items():
+                setattr(s.settings, k, v)
+            s.settings.verbose = False
+            s.setup(H, g, np.asfortranarray(A[eq]), lba[eq], np.asfortranarray(A[iq]), lba[iq], uba[iq], lbx, ubx)
+            flag = s.solve()
+            r = s.result
+            x = np.asarray(r.x, dtype=float).copy()
+            lam_a = np.zeros(m)
+            lam_a[eq] = r.y
+            lam_a[iq] = np.asarray(r.z_u, dtype=float) - np.asarray(r.z_l, dtype=float)
+            lam_x = np.asarray(r.z_bu, dtype=float) - np.asarray(r.z_bl, dtype=float)
+            raw = str(flag).split(".")[-1]
+            outcome = {piqp.PIQP_SOLVED: QPStatus.OPTIMAL, piqp.PIQP_PRIMAL_INFEASIBLE: QPStatus.INFEASIBLE,
+                       piqp.PIQP_MAX_ITER_REACHED: QPStatus.ITERATION_LIMIT}.get(flag, QPStatus.NUMERICAL)
+        except (ValueError, RuntimeError, TypeError) as exc:     # ill-posed data: trouble, not a proof
+            raw, outcome = f"error: {exc}", QPStatus.NUMERICAL
+        dt, dc = time.perf_counter() - t0, time.process_time() - c0
+        if outcome is QPStatus.OPTIMAL and not np.all(np.isfinite(x)):
+            outcome = QPStatus.NUMERICAL
+        proven = None
+        if outcome is QPStatus.INFEASIBLE:
+            proven = bool(proves_infeasible(A, lba, uba, lbx, ubx, lam_a))
+            if not proven:
+                lam_a, lam_x = np.zeros(m), np.zeros(n)
+        return QPSolution(x, lam_a, lam_x, outcome is QPStatus.OPTIMAL, raw, dt, dc, outcome, PIQP, proven=proven)
