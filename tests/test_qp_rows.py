@@ -38,3 +38,60 @@ def test_derived_rows_match_the_rows_written_out():
     assert v_dense > 0 and v_op <= v_dense * (1 + 1e-9) and v_op > 0.5 * v_dense
     H, Am = qp.matrices(K)
     assert np.array_equal(Am, op.dense()) and H is qp.hessian(K)
+
+
+def _random_rows(rng, m_b=300, n=41, nd=12, nv=500):
+    """Explicit rows on disjoint column sets (part 0: columns 0..19 and the last, part 1: 20..39, one of
+    them all zero) and derived rows, as a seek QP's."""
+    A0, A1 = np.zeros((m_b, n)), np.zeros((m_b, n))
+    A0[:, :20], A0[:, -1] = rng.standard_normal((m_b, 20)), rng.standard_normal(m_b)
+    A1[:, 20:40] = rng.standard_normal((m_b, 20))
+    A0[:, 5] = 0.0                                   # a column with no entry: left out of the products
+    D0, D1 = np.zeros((nd, n)), np.zeros((nd, n))
+    D0[:, :20], D1[:, 20:40] = rng.standard_normal((nd, 20)), rng.standard_normal((nd, 20))
+    p, d, s = rng.integers(0, m_b, nv), rng.integers(0, nd, nv), rng.choice([-1.0, 1.0], nv)
+    return A0, A1, D0, D1, p, d, s
+
+
+def test_rows_from_parts_equal_the_rows_from_full_arrays():
+    """SeekRows.from_parts (the seek QP's: each part on its own columns, the full arrays never written) gives
+    bitwise the products and rows of SeekRows(A0, A1), for rows in any order, explicit and derived mixed,
+    columns in runs or not, and after |K| changes (kept shared rows and column maps renewed)."""
+    rng = np.random.default_rng(5)
+    A0, A1, D0, D1, p, d, s = _random_rows(rng)
+    n = A0.shape[1]
+    full = SeekRows(A0, A1, D0, D1, p, d, s)
+    c0, c1 = np.r_[np.arange(20), n - 1], np.arange(20, 40)
+    parts = SeekRows.from_parts(n, (c0, np.asfortranarray(A0[:, c0])), (c1, np.asfortranarray(A1[:, c1])),
+                                D0, D1, p, d, s)
+    assert np.array_equal(parts.A0, A0) and np.array_equal(parts.A1, A1)
+    written = lambda K: np.vstack([A0 + K * A1, (A0 + K * A1)[p] + s[:, None] * (D0 + K * D1)[d]])  # noqa: E731
+    for K in (3.0, 3.0, 250.0, 0.5):
+        a, b = full.at(K), parts.at(K)
+        x = rng.uniform(-1, 1, n)
+        assert np.array_equal(a.matvec(x), b.matvec(x))
+        assert np.array_equal(a.abs_matvec(np.abs(x)), b.abs_matvec(np.abs(x)))
+        for rows, cols in ((np.arange(0, full.m, 3), np.arange(n)),                     # sorted, all columns
+                           (rng.permutation(full.m)[:200], np.arange(3, 30)),           # any order, a run
+                           (np.r_[full.m - 1, 0, 7, full.m_b], np.r_[40, 0, 5, 22, 21])):  # scattered
+            ref = written(K)[np.ix_(rows, cols)]
+            assert np.array_equal(a.take(rows, cols), ref) and np.array_equal(b.take(rows, cols), ref)
+        Aw = written(K)
+        assert np.allclose(b.matvec(x), Aw @ x, rtol=0, atol=1e-12 * np.max(np.abs(Aw @ x)))
+
+
+def test_bounds_of_the_last_arguments_are_kept_read_only():
+    """SeekQP.bounds returns the same arrays for the same arguments (the designer's re-check and the working
+    set ask twice per solve), read-only so that no caller can change them for the next; other arguments
+    give other bounds."""
+    des = SeekDesigner(default_truth_plant(), Controller.nss(), 0.3)
+    qp = des._structure(8, False)
+    args = (37.0, 8, des.beta, des.gamma, des.hf_tol, None)
+    first = qp.bounds(*args)
+    again = qp.bounds(*args)
+    assert all(a is b for a, b in zip(first, again))
+    for a in first:
+        assert not a.flags.writeable
+    other = qp.bounds(37.0, 7, des.beta, des.gamma, des.hf_tol, None)
+    assert not np.array_equal(other[1], first[1])        # the band rows of sample 7 now bound
+    assert all(np.array_equal(a, b) for a, b in zip(qp.bounds(*args), first))

@@ -60,6 +60,28 @@ def set_row_samples(nmax: int, horizon: int, stride: int = 1) -> np.ndarray:
     return np.unique(np.r_[near[(near % (2 * stride)) < 2] if stride > 1 else near, ks[ks >= nmax + 32]]).astype(int)
 
 
+def _parts(blocks, n: int, N: int):
+    """The row blocks of :func:`_assemble` as :meth:`SeekRows.from_parts`' parts, ``((cols0, P0), (cols1, P1))``:
+    ``a_v`` (and ``t`` on the last column) in ``P0`` on columns ``0..N-1`` (and ``n - 1``), ``a_q`` in ``P1`` on
+    the reference columns ``N..`` -- the ``A0``, ``A1`` of :func:`_assemble` on those columns only."""
+    m = sum(v.shape[0] for v, _, _ in blocks)
+    has_t = any(t is not None for _, _, t in blocks)
+    nq = max([q.shape[1] for _, q, _ in blocks if q is not None], default=0)
+    P0 = np.zeros((m, N + has_t), order="F")       # column-major: SeekRows keeps its parts so
+    P1 = np.zeros((m, nq), order="F")
+    r = 0
+    for v, q, t in blocks:
+        k = v.shape[0]
+        P0[r:r + k, :N] = v
+        if q is not None:
+            P1[r:r + k, :q.shape[1]] = q
+        if t is not None:
+            P0[r:r + k, -1] = t
+        r += k
+    cols0 = np.r_[np.arange(N), n - 1] if has_t else np.arange(N)
+    return (cols0, P0), (N + np.arange(nq), P1)
+
+
 def _assemble(blocks, n: int, N: int):
     """``(A0, A1)``: row blocks ``(a_v, a_q, t)`` placed into two ``(rows, n)`` arrays -- ``a_v`` on the
     ``N`` feedforward columns and ``t`` (a number) on the epigraph column of ``A0``, ``a_q`` on the
@@ -134,7 +156,9 @@ class SeekQP:
         ks = pes_row_samples(Ns, Hn)
         self.pes_k = ks
         ncur = min(Hn, N + current_extra)
-        blocks, c0, c1, kinds = [], [], [], []    # offsets: c = c0 + K c1 (band / Imax units)
+        blocks, c0, c1 = [], [], []    # offsets: c = c0 + K c1 (band / Imax units)
+        kinds = []      # (kind, plant, samples) per block of rows
+        pes_at = {}     # plant -> (first row, samples) of its "pes" block
 
         if not self.free_ref:
             Rfull = np.asarray(R, float)[:Hn, :N]
@@ -151,7 +175,9 @@ class SeekQP:
             reps = ((-1.0, "pes_hi"), (1.0, "pes_lo")) if epigraph else ((0.0, "pes"),)
             for sgn, kind in reps:
                 blocks.append((av, aq, sgn if epigraph else None)); c0.append(off0); c1.append(off1)
-                kinds += [(kind, i, int(k)) for k in ksi]
+                if kind == "pes":
+                    pes_at[i] = (sum(len(kd[2]) for kd in kinds), ksi)
+                kinds.append((kind, i, np.asarray(ksi, dtype=int)))
         for i, m in enumerate(maps):   # nominal: seek + 40 samples; other plants: seek + 8 (never thinned)
             Tiu, Tir, sir = m.current_rows(ncur if i == 0 else min(Hn, N + 8), N if self.free_ref else Hn)
             if self.free_ref:
@@ -161,7 +187,7 @@ class SeekQP:
                 av, aq = Tiu[:, :N] + Tir @ Rfull, None
                 off0, off1 = np.full(Tiu.shape[0], m.hold_a / imax), np.zeros(Tiu.shape[0])
             blocks.append((av, aq, None)); c0.append(off0); c1.append(off1)
-            kinds += [("cur", i, j) for j in range(av.shape[0])]
+            kinds.append(("cur", i, np.arange(av.shape[0])))
         if hf is not None:     # hf = (G, freqs): rows on the nominal plant's sub-step currents
             G = hf[0]
             m = maps[0]
@@ -175,7 +201,7 @@ class SeekQP:
                 av, aq = imax * G @ (Tiu[:, :N] + Tir @ Rfull) / band, None
                 off0, off1 = np.zeros(G.shape[0]), np.zeros(G.shape[0])
             blocks.append((av, aq, None)); c0.append(off0); c1.append(off1)
-            kinds += [("hf", 0, j) for j in range(G.shape[0])]
+            kinds.append(("hf", 0, np.arange(G.shape[0])))
         ncol = N if self.free_ref else Hn
 
         def pos_block(h_u, h_r, s_r, target):
@@ -192,12 +218,12 @@ class SeekQP:
         self.s_vel = maps[0].k0 * imax * N / (fs * fs)
         av = np.zeros((2, N)); av[0] = M[0] * imax / self.s_pos; av[1] = M[1] * imax / self.s_vel
         blocks.append((av, None, None)); c0.append(np.zeros(2)); c1.append(np.zeros(2))
-        kinds += [("rigid", 0, 0), ("rigid", 0, 1)]
+        kinds.append(("rigid", 0, np.arange(2)))
         if slew is not None:
             D = np.eye(N + 1, N) - np.eye(N + 1, N, -1)
             blocks.append((D, None, None)); c0.append(np.zeros(N + 1)); c1.append(np.zeros(N + 1))
-            kinds += [("slew", 0, j) for j in range(N + 1)]
-        self.A0, self.A1 = _assemble(blocks, n, N)    # the explicit rows
+            kinds.append(("slew", 0, np.arange(N + 1)))
+        explicit = _parts(blocks, n, N)    # the explicit rows, on their columns
         # a blind-band mode's PES added to each band plant's (seekopt.design.blind_pes), both signs: derived
         # rows (a band row +- a shared row, seekopt.design.qp_rows), after the explicit rows;
         # ``bpes_plants``: only those (None: every band plant)
@@ -208,7 +234,6 @@ class SeekQP:
         D0 = D1 = None
         vp, vd, vs = [], [], []
         if bp_plants:
-            row_of = {(kd[1], kd[2]): r for r, kd in enumerate(kinds) if kd[0] == "pes"}
             dblocks = []
             for dy_u, dy_r in bpes:
                 dv, dq, d0, d1 = pos_block(dy_u, dy_r, np.cumsum(dy_r), 0.0)
@@ -217,17 +242,22 @@ class SeekQP:
             nk = len(ks_other)
             c0b, c1b = np.concatenate(c0), np.concatenate(c1)
             for i in bp_plants:
-                prow = np.array([row_of[(i, int(k))] for k in ks_other])
+                r0, ksi = pes_at[i]          # the plant's band rows on ks_other's samples
+                at = np.searchsorted(ksi, ks_other)
+                if not np.array_equal(ksi[np.minimum(at, len(ksi) - 1)], ks_other):
+                    raise ValueError("blind-band PES samples without band rows")
+                prow = r0 + at
                 for f, b in enumerate(dblocks):
                     for sgn in (1.0, -1.0):
                         vp.append(prow); vd.append(f * nk + np.arange(nk)); vs.append(np.full(nk, sgn))
                         c0.append(c0b[prow] + sgn * b[3]); c1.append(c1b[prow] + sgn * b[4])
-                        kinds += [("bpes", i, int(k)) for k in ks_other]
+                        kinds.append(("bpes", i, np.asarray(ks_other, dtype=int)))
         cat = (lambda v: np.concatenate(v)) if vp else (lambda v: None)
-        self.rows = SeekRows(self.A0, self.A1, D0, D1, cat(vp), cat(vd), cat(vs))
-        self.kind = np.array([k[0] for k in kinds])
-        self.plant_idx = np.array([k[1] for k in kinds])
-        self.sample = np.array([k[2] for k in kinds])
+        self.rows = SeekRows.from_parts(n, *explicit, D0, D1, cat(vp), cat(vd), cat(vs))
+        lens = [len(kd[2]) for kd in kinds]
+        self.kind = np.repeat(np.array([kd[0] for kd in kinds]), lens)
+        self.plant_idx = np.repeat(np.array([kd[1] for kd in kinds], dtype=int), lens)
+        self.sample = np.concatenate([kd[2] for kd in kinds])
         self.c0, self.c1 = np.concatenate(c0), np.concatenate(c1)
         self.m = self.rows.m
         self.band_plants = set(band_plants)
@@ -248,12 +278,13 @@ class SeekQP:
             eblocks.append((imax * Tyu / band, Tyr / band, None) if self.free_ref
                            else (imax * (Tyu[:, :N] + Tyr @ Rfull) / band, None, None))
             e1.append((syr - 1.0) / band if self.free_ref else -np.ones(len(kt)) / band)
-        (E0, E1), e1 = _assemble(eblocks, n, N), np.concatenate(e1)
-        w = 2 * w_e / E0.shape[0]
-        # products on the nonzero blocks only (E0 lives on the feedforward columns, E1 on the reference
-        # columns): a quarter of the full-width products' work, the same numbers
+        e1 = np.concatenate(e1)
+        # the blocks stacked on their own columns only (feedforward E0v, reference E1q; the full-width
+        # arrays were zero elsewhere): products on those, a quarter of the full-width work, the same numbers
+        E0v = np.concatenate([b[0] for b in eblocks])
+        E1q = np.concatenate([b[1] for b in eblocks]) if nq else None
+        w = 2 * w_e / E0v.shape[0]
         v, q = slice(0, N), slice(N, N + nq)
-        E0v, E1q = E0[:, v], E1[:, q]
         self._P0, self._P1, self._P2 = P.copy(), np.zeros((n, n)), np.zeros((n, n))
         self._q1, self._q2 = np.zeros(n), np.zeros(n)       # g = K q1 + K|K| q2
         self._P0[v, v] += (w * E0v.T) @ E0v
@@ -267,11 +298,22 @@ class SeekQP:
         self._H_K, self._H = None, None          # H of the last |K| (hessian())
         self._mat_K, self._mat = None, None      # (H, A) written out, of the last |K| (matrices())
         self._make_solver, self._solver = solver, None
+        self._bounds_key, self._bounds = None, None      # bounds() of the last arguments
         # row masks of bounds() (computed once)
         self._pes = np.isin(self.kind, ("pes", "pes_hi", "pes_lo")) & np.isin(self.plant_idx, list(self.band_plants))
         self._masks = {k: self.kind == k for k in ("pes_hi", "pes_lo", "cur", "hf", "bpes", "rigid", "slew")}
         self.bpes_tol = bpes_tol      # |blind-band PES| / band on the band rows' samples (None: rows free)
         self.build_time_s = time.perf_counter() - t_build
+
+    @property
+    def A0(self) -> np.ndarray:
+        """The explicit rows' ``|K|``-free part ``(m_b, n)`` (:attr:`SeekRows.A0`, written out on first use)."""
+        return self.rows.A0
+
+    @property
+    def A1(self) -> np.ndarray:
+        """The explicit rows' part scaled by ``|K|`` (:attr:`SeekRows.A1`)."""
+        return self.rows.A1
 
     @property
     def solver(self):
@@ -299,7 +341,8 @@ class SeekQP:
         band rows from this sample on (at most ``nseek``; the set's other plants from ``nseek``).
         """
         aK = abs(K)
-        g, lba, uba, lbx, ubx = self.bounds(K, nseek, beta, gamma, hf_tol, slew_a_per_s, nominal_from)
+        g, lba, uba, lbx, ubx = (a.copy() for a in self.bounds(K, nseek, beta, gamma, hf_tol, slew_a_per_s,
+                                                                nominal_from))     # writeable, as numeric()
         H = self._dm["P0"] + aK * self._dm["P1"] + aK * aK * self._dm["P2"]
         A = self._dm["A0"] + aK * self._dm["A1"]
         return H, g, A, lba, uba, lbx, ubx
@@ -328,14 +371,27 @@ class SeekQP:
 
     def numeric(self, K: float, nseek: int, beta: float | None, gamma: float, hf_tol: float | None,
                 slew_a_per_s: float | None = None, nominal_from: int | None = None):
-        """:meth:`data` as numpy arrays ``(H, g, A, lba, uba, lbx, ubx)`` (no casadi copies)."""
+        """:meth:`data` as numpy arrays ``(H, g, A, lba, uba, lbx, ubx)`` (no casadi copies; the bounds are
+        writeable copies of :meth:`bounds`' kept arrays: the ``daqp`` package reads only writeable buffers)."""
         H, A = self.matrices(K)
-        g, lba, uba, lbx, ubx = self.bounds(K, nseek, beta, gamma, hf_tol, slew_a_per_s, nominal_from)
+        g, lba, uba, lbx, ubx = (a.copy() for a in self.bounds(K, nseek, beta, gamma, hf_tol, slew_a_per_s,
+                                                                nominal_from))
         return H, g, A, lba, uba, lbx, ubx
 
     def bounds(self, K: float, nseek: int, beta: float | None, gamma: float, hf_tol: float | None,
                slew_a_per_s: float | None = None, nominal_from: int | None = None):
-        """``(g, lba, uba, lbx, ubx)`` (numpy) of :meth:`data`."""
+        """``(g, lba, uba, lbx, ubx)`` (numpy) of :meth:`data`; the last call's arrays are kept (the designer's
+        re-check and the working set ask for the same bounds of each solve) and returned read-only."""
+        key = (float(K), int(nseek), beta, float(gamma), hf_tol, slew_a_per_s, nominal_from)
+        if self._bounds_key == key:
+            return self._bounds
+        out = self._bounds_of(K, nseek, beta, gamma, hf_tol, slew_a_per_s, nominal_from)
+        for a in out:
+            a.flags.writeable = False
+        self._bounds_key, self._bounds = key, out
+        return out
+
+    def _bounds_of(self, K, nseek, beta, gamma, hf_tol, slew_a_per_s, nominal_from):
         aK = abs(K)
         N, n = self.N, self.n
         if not 0 < nseek <= N:
@@ -397,7 +453,7 @@ class SeekQP:
     def residual(self, x: np.ndarray, K: float, nseek: int, plants=None) -> float:
         """Worst ``|PES| / band`` over the band rows ``k >= nseek`` of ``plants`` (default all)."""
         mb = self.rows.m_b                 # band rows are explicit rows
-        e = self.A0 @ x + abs(K) * (self.A1 @ x) + self.c0[:mb] + K * self.c1[:mb]
+        e = self.row_operator(K).explicit_matvec(x) + self.c0[:mb] + K * self.c1[:mb]
         kind, sample = self.kind[:mb], self.sample[:mb]
         sel = np.isin(kind, ("pes", "pes_hi")) & (sample >= nseek)
         if plants is not None:

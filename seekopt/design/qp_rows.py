@@ -21,6 +21,13 @@ import numpy as np
 __all__ = ["SeekRows"]
 
 
+def _as_slice(idx: np.ndarray):
+    """``idx`` as a slice when it is a run of consecutive indices (a view, not a gather), else ``idx``."""
+    if idx.size and np.all(np.diff(idx) == 1):
+        return slice(int(idx[0]), int(idx[-1]) + 1)
+    return idx
+
+
 class SeekRows:
     """Rows ``A(K)`` of a seek QP: ``m_b`` explicit rows ``A0 + |K| A1`` and derived rows
     ``A[p] + s (D0 + |K| D1)[d]`` (module docstring).
@@ -38,8 +45,22 @@ class SeekRows:
     """
 
     def __init__(self, A0, A1, D0=None, D1=None, p=None, d=None, s=None):
-        self.A0, self.A1 = A0, A1
-        self.m_b, self.n = A0.shape
+        A0, A1 = np.asarray(A0, dtype=float), np.asarray(A1, dtype=float)
+        n = A0.shape[1]
+        self._setup(n, (np.arange(n), A0), (np.arange(n), A1), D0, D1, p, d, s)
+
+    @classmethod
+    def from_parts(cls, n: int, part0, part1, D0=None, D1=None, p=None, d=None, s=None) -> "SeekRows":
+        """The rows from each part's entries on its columns only: ``part0 = (cols, P)`` with ``A0[:, cols] = P``
+        (``A0`` zero elsewhere), ``part1`` likewise for ``A1`` -- the full ``(m_b, n)`` arrays are never
+        written (:attr:`A0`, :attr:`A1` build them when asked)."""
+        self = cls.__new__(cls)
+        self._setup(int(n), part0, part1, D0, D1, p, d, s)
+        return self
+
+    def _setup(self, n, part0, part1, D0, D1, p, d, s):
+        (cols0, Q0), (cols1, Q1) = part0, part1
+        self.m_b, self.n = Q0.shape[0], n
         z = np.zeros(0, dtype=int)
         self.p = z if p is None else np.asarray(p, dtype=int)
         self.d = z if d is None else np.asarray(d, dtype=int)
@@ -49,12 +70,40 @@ class SeekRows:
         self.m = self.m_b + self.p.size
         # the columns each part lives on (A0: feedforward and epigraph, A1: reference): products read
         # only those, and A(K) is never formed (a robust structure's explicit rows are 20 MB per part)
-        self._c0 = np.flatnonzero(np.any(A0 != 0, axis=0))
-        self._c1 = np.flatnonzero(np.any(A1 != 0, axis=0))
-        self._P0, self._P1 = A0[:, self._c0], A1[:, self._c1]
+        nz0, nz1 = np.any(Q0 != 0, axis=0), np.any(Q1 != 0, axis=0)
+        self._c0, self._c1 = np.asarray(cols0, dtype=int)[nz0], np.asarray(cols1, dtype=int)[nz1]
+        # column-major, as a column selection gives (BLAS's products on it: the same sums as always)
+        self._P0 = Q0 if nz0.all() and Q0.flags.f_contiguous else np.asfortranarray(Q0[:, nz0])
+        self._P1 = Q1 if nz1.all() and Q1.flags.f_contiguous else np.asfortranarray(Q1[:, nz1])
+        self._full = None
+        # parts on disjoint columns (the seek QP's): an entry of A(K) is one part's, or zero
+        self._disjoint = not np.intersect1d(self._c0, self._c1).size
+        self._at0, self._at1 = np.full(self.n, -1), np.full(self.n, -1)    # column -> its place in a part
+        self._at0[self._c0] = np.arange(self._c0.size)
+        self._at1[self._c1] = np.arange(self._c1.size)
         self._aK = 0.0
         self._Dk = self.D0
         self._abs = None
+        self._cols_key, self._cols_map = None, None     # _col_map of the last columns
+        self._dcols = None                              # the shared rows at |K| on the last columns
+
+    @property
+    def A0(self) -> np.ndarray:
+        """The explicit rows' ``|K|``-free part, ``(m_b, n)`` (written out on first use)."""
+        return self._explicit()[0]
+
+    @property
+    def A1(self) -> np.ndarray:
+        """The explicit rows' part scaled by ``|K|``, ``(m_b, n)`` (written out on first use)."""
+        return self._explicit()[1]
+
+    def _explicit(self):
+        if self._full is None:
+            A0, A1 = np.zeros((self.m_b, self.n)), np.zeros((self.m_b, self.n))
+            A0[:, self._c0] = self._P0
+            A1[:, self._c1] = self._P1
+            self._full = (A0, A1)
+        return self._full
 
     def at(self, aK: float) -> "SeekRows":
         """Fix ``|K|`` (kept until the next call with another ``|K|``)."""
@@ -62,17 +111,28 @@ class SeekRows:
         if self._aK != aK:
             self._aK = aK
             self._Dk = self.D0 + aK * self.D1
+            self._dcols = None
         return self
 
-    def _base(self, x: np.ndarray) -> np.ndarray:
-        return self._P0 @ x[self._c0] + self._aK * (self._P1 @ x[self._c1])
+    def _base(self, x: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        t = self._P1 @ x[self._c1]
+        t *= self._aK
+        return np.add(self._P0 @ x[self._c0], t, out=out)
+
+    def explicit_matvec(self, x: np.ndarray) -> np.ndarray:
+        """``A x`` over the ``m_b`` explicit rows."""
+        return self._base(x)
 
     def matvec(self, x: np.ndarray) -> np.ndarray:
         """``A x`` over all ``m`` rows."""
-        b = self._base(x)
         if not self.p.size:
-            return b
-        return np.concatenate([b, b[self.p] + self.s * (self._Dk @ x)[self.d]])
+            return self._base(x)
+        out = np.empty(self.m)
+        b, v = out[:self.m_b], out[self.m_b:]
+        self._base(x, out=b)
+        np.multiply(self.s, (self._Dk @ x)[self.d], out=v)
+        v += b[self.p]          # = b[p] + s (D x)[d], the same sum (addition commutes)
+        return out
 
     def abs_matvec(self, ax: np.ndarray) -> np.ndarray:
         """``|A| ax`` for ``ax >= 0``, each row's ``|A0 + |K| A1|`` taken as ``|A0| + |K| |A1|`` (exact where
@@ -88,22 +148,53 @@ class SeekRows:
 
     def _rows(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """Explicit rows ``rows`` (< ``m_b``) of ``A0 + |K| A1`` on columns ``cols`` (from the parts' own
-        columns: whole rows of contiguous arrays, then the columns)."""
+        columns: whole rows of contiguous arrays, then the columns).  Parts on disjoint columns: each part's
+        columns among ``cols`` picked from its rows (the same numbers: ``|K| A1`` is the one product, no sum)."""
+        if self._disjoint:
+            j0, i0, j1, i1 = self._col_map(cols)
+            out = np.zeros((rows.size, cols.size))
+            out[:, j0] = self._P0[rows, i0] if isinstance(i0, slice) else self._P0[rows][:, i0]
+            out[:, j1] = self._aK * (self._P1[rows, i1] if isinstance(i1, slice) else self._P1[rows][:, i1])
+            return out
         out = np.zeros((rows.size, self.n))
         out[:, self._c0] = self._P0[rows]
         out[:, self._c1] += self._aK * self._P1[rows]
         return out[:, cols]
 
+    def _col_map(self, cols: np.ndarray):
+        """``(j0, i0, j1, i1)``: the places ``j`` in ``cols`` of the columns of part 0 / 1 and their places ``i``
+        in the part (the last ``cols``' kept: a working set's rounds share them)."""
+        if self._cols_key is None or not np.array_equal(self._cols_key, cols):
+            a0, a1 = self._at0[cols], self._at1[cols]
+            j0, j1 = np.flatnonzero(a0 >= 0), np.flatnonzero(a1 >= 0)
+            self._cols_key = cols.copy()
+            self._cols_map = tuple(_as_slice(v) for v in (j0, a0[j0], j1, a1[j1]))
+            self._dcols = None
+        return self._cols_map
+
+    def _shared_cols(self, cols: np.ndarray) -> np.ndarray:
+        """The shared rows ``D0 + |K| D1`` on columns ``cols`` (kept for the last ``|K|`` and columns)."""
+        if self._dcols is None or not np.array_equal(self._dcols[0], cols):
+            self._dcols = (cols.copy(), self._Dk[:, cols])
+        return self._dcols[1]
+
     def take(self, rows: np.ndarray, cols: np.ndarray | None = None) -> np.ndarray:
-        """The rows ``rows`` (and columns ``cols``) as an explicit array."""
+        """The rows ``rows`` (and columns ``cols``) as an explicit array: a derived row is its explicit row's
+        entries plus its signed shared row's (gathered with the explicit rows, then added)."""
         rows = np.asarray(rows, dtype=int)
         cols = np.arange(self.n) if cols is None else np.asarray(cols, dtype=int)
-        out = np.empty((rows.size, cols.size))
-        exp = rows < self.m_b
-        out[exp] = self._rows(rows[exp], cols)
-        if not np.all(exp):
-            j = rows[~exp] - self.m_b
-            out[~exp] = self._rows(self.p[j], cols) + self.s[j, None] * self._Dk[np.ix_(self.d[j], cols)]
+        der = np.flatnonzero(rows >= self.m_b)
+        if not der.size:
+            return self._rows(rows, cols)
+        j = rows[der] - self.m_b
+        src = rows.copy()
+        src[der] = self.p[j]
+        out = self._rows(src, cols)
+        add = self.s[j, None] * self._shared_cols(cols)[self.d[j]]
+        if der[0] == rows.size - der.size:       # derived rows last (sorted rows): one slice
+            out[der[0]:] += add
+        else:
+            out[der] += add
         return out
 
     def dense(self) -> np.ndarray:
