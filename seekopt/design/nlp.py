@@ -223,7 +223,12 @@ class EffectAwareDesigner:
         dp = self.nlp_plant.discretize(dt)
         dp.reset(T0, 0.0, current=uh)
         x0 = np.r_[dp.x, dp.hist, np.zeros(self.controller.n_states)]
-        n0, tin = int(warm.settle_samples), self.tin
+        # the search starts at the length the warm start was solved for: the one its whole set holds the band
+        # from (set_settle_samples; its input runs input_tail samples more).  A robust design's nominal may
+        # settle sooner (settle_samples): squeezed to that, the warm start of the Kt drive's robust K = 200
+        # from track 12000 (nominal 45, set 46 samples) started the NLP 9.7 band off and it stopped at 1.98 band
+        tin = self.tin
+        n0 = max(int(warm.set_settle_samples), int(warm.settle_samples))
         # the whole warm start: the linear design's input runs input_tail samples past its settle sample (its
         # band rows hold from n0); cut at n0 (the former rule) it lost the end of the deceleration (up to
         # 0.17 A over 8 samples on the combination drive's K = 200): 4.7 band of guard residual, and the NLPs
