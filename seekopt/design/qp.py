@@ -22,7 +22,7 @@ import numpy as np
 
 from seekopt.design.loop_maps import LoopMaps, toeplitz_rows
 from seekopt.design.profiles import rigid_endpoint_matrix
-from seekopt.design.qp_rows import SeekRows
+from seekopt.design.qp_rows import SeekRows, assemble_blocks, block_parts
 # solver names re-exported for callers of the former combined module
 from seekopt.design.modal_residual import (dtft, hf_guard_matrix, mode_residual_phasors,  # noqa: F401
                                             mode_residual_rows, mode_residuals)
@@ -58,46 +58,6 @@ def set_row_samples(nmax: int, horizon: int, stride: int = 1) -> np.ndarray:
     stride = max(int(stride), 1)
     near = ks[ks < nmax + 32]
     return np.unique(np.r_[near[(near % (2 * stride)) < 2] if stride > 1 else near, ks[ks >= nmax + 32]]).astype(int)
-
-
-def _parts(blocks, n: int, N: int):
-    """The row blocks of :func:`_assemble` as :meth:`SeekRows.from_parts`' parts, ``((cols0, P0), (cols1, P1))``:
-    ``a_v`` (and ``t`` on the last column) in ``P0`` on columns ``0..N-1`` (and ``n - 1``), ``a_q`` in ``P1`` on
-    the reference columns ``N..`` -- the ``A0``, ``A1`` of :func:`_assemble` on those columns only."""
-    m = sum(v.shape[0] for v, _, _ in blocks)
-    has_t = any(t is not None for _, _, t in blocks)
-    nq = max([q.shape[1] for _, q, _ in blocks if q is not None], default=0)
-    P0 = np.zeros((m, N + has_t), order="F")       # column-major: SeekRows keeps its parts so
-    P1 = np.zeros((m, nq), order="F")
-    r = 0
-    for v, q, t in blocks:
-        k = v.shape[0]
-        P0[r:r + k, :N] = v
-        if q is not None:
-            P1[r:r + k, :q.shape[1]] = q
-        if t is not None:
-            P0[r:r + k, -1] = t
-        r += k
-    cols0 = np.r_[np.arange(N), n - 1] if has_t else np.arange(N)
-    return (cols0, P0), (N + np.arange(nq), P1)
-
-
-def _assemble(blocks, n: int, N: int):
-    """``(A0, A1)``: row blocks ``(a_v, a_q, t)`` placed into two ``(rows, n)`` arrays -- ``a_v`` on the
-    ``N`` feedforward columns and ``t`` (a number) on the epigraph column of ``A0``, ``a_q`` on the
-    reference columns ``N..`` of ``A1`` (one allocation each, no full-width copies per block)."""
-    m = sum(v.shape[0] for v, _, _ in blocks)
-    A0, A1 = np.zeros((m, n)), np.zeros((m, n))
-    r = 0
-    for v, q, t in blocks:
-        k = v.shape[0]
-        A0[r:r + k, :N] = v
-        if q is not None:
-            A1[r:r + k, N:N + q.shape[1]] = q
-        if t is not None:
-            A0[r:r + k, -1] = t
-        r += k
-    return A0, A1
 
 
 class SeekQP:
@@ -223,7 +183,7 @@ class SeekQP:
             D = np.eye(N + 1, N) - np.eye(N + 1, N, -1)
             blocks.append((D, None, None)); c0.append(np.zeros(N + 1)); c1.append(np.zeros(N + 1))
             kinds.append(("slew", 0, np.arange(N + 1)))
-        explicit = _parts(blocks, n, N)    # the explicit rows, on their columns
+        explicit = block_parts(blocks, n, N)    # the explicit rows, on their columns
         # a blind-band mode's PES added to each band plant's (seekopt.design.blind_pes), both signs: derived
         # rows (a band row +- a shared row, seekopt.design.qp_rows), after the explicit rows;
         # ``bpes_plants``: only those (None: every band plant)
@@ -238,7 +198,7 @@ class SeekQP:
             for dy_u, dy_r in bpes:
                 dv, dq, d0, d1 = pos_block(dy_u, dy_r, np.cumsum(dy_r), 0.0)
                 dblocks.append((dv, dq, None, d0, d1))
-            D0, D1 = _assemble([b[:3] for b in dblocks], n, N)
+            D0, D1 = assemble_blocks([b[:3] for b in dblocks], n, N)
             nk = len(ks_other)
             c0b, c1b = np.concatenate(c0), np.concatenate(c1)
             for i in bp_plants:

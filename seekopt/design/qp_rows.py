@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["SeekRows"]
+__all__ = ["SeekRows", "block_parts", "assemble_blocks"]
 
 
 def _as_slice(idx: np.ndarray):
@@ -207,3 +207,44 @@ class SeekRows:
         if not len(p):
             return A0, A1
         return (np.vstack([A0, A0[p] + s[:, None] * D0[d]]), np.vstack([A1, A1[p] + s[:, None] * D1[d]]))
+
+
+# ---------------------------------------------------------------- row blocks of a seek QP (moved from qp.py)
+def block_parts(blocks, n: int, N: int):
+    """The row blocks of :func:`assemble_blocks` as :meth:`SeekRows.from_parts`' parts, ``((cols0, P0), (cols1, P1))``:
+    ``a_v`` (and ``t`` on the last column) in ``P0`` on columns ``0..N-1`` (and ``n - 1``), ``a_q`` in ``P1`` on
+    the reference columns ``N..`` -- the ``A0``, ``A1`` of :func:`assemble_blocks` on those columns only."""
+    m = sum(v.shape[0] for v, _, _ in blocks)
+    has_t = any(t is not None for _, _, t in blocks)
+    nq = max([q.shape[1] for _, q, _ in blocks if q is not None], default=0)
+    P0 = np.zeros((m, N + has_t), order="F")       # column-major: SeekRows keeps its parts so
+    P1 = np.zeros((m, nq), order="F")
+    r = 0
+    for v, q, t in blocks:
+        k = v.shape[0]
+        P0[r:r + k, :N] = v
+        if q is not None:
+            P1[r:r + k, :q.shape[1]] = q
+        if t is not None:
+            P0[r:r + k, -1] = t
+        r += k
+    cols0 = np.r_[np.arange(N), n - 1] if has_t else np.arange(N)
+    return (cols0, P0), (N + np.arange(nq), P1)
+
+
+def assemble_blocks(blocks, n: int, N: int):
+    """``(A0, A1)``: row blocks ``(a_v, a_q, t)`` placed into two ``(rows, n)`` arrays -- ``a_v`` on the
+    ``N`` feedforward columns and ``t`` (a number) on the epigraph column of ``A0``, ``a_q`` on the
+    reference columns ``N..`` of ``A1`` (one allocation each, no full-width copies per block)."""
+    m = sum(v.shape[0] for v, _, _ in blocks)
+    A0, A1 = np.zeros((m, n)), np.zeros((m, n))
+    r = 0
+    for v, q, t in blocks:
+        k = v.shape[0]
+        A0[r:r + k, :N] = v
+        if q is not None:
+            A1[r:r + k, N:N + q.shape[1]] = q
+        if t is not None:
+            A0[r:r + k, -1] = t
+        r += k
+    return A0, A1
