@@ -38,7 +38,7 @@ from identification.logs.seeklog import SeekLog
 from identification.loop.candidates import CANDIDATES, fit_candidate
 from identification.loop.compensate import compensate, reidentified
 from identification.loop.evidence import describe_residual, evidence_lines, unexplained_lines
-from identification.loop.decision import OUT_OF_LIBRARY, passes, proxy_for, rank
+from identification.loop.decision import OUT_OF_LIBRARY, passes, proxy_for, rank, validates
 from identification.loop.fit_engine import Data, Fit, refit_base
 from identification.loop.joint import held_base, needs_joint_refit
 from identification.loop.reidentify import _relinearised, _reidentify, reidentified_meta
@@ -136,11 +136,8 @@ def _try_candidates(names, accepted, cur: _State, fit: Data, val: Data, same: bo
         if rv.rms < cur.val.rms:
             F, rv = _with_table_refitted(F, rv, fit, val, same, st, say)
         rf, drop, rdrop = None, float("nan"), float("nan")
-        need = 1.0 if F.n_params <= 0 else 1.0 - st.min_validation_drop
         rate0, rate1 = cur.val.rate_rms, rv.rate_rms
-        by_rate = F.n_params > 0 and rate1 <= (1.0 - st.min_validation_drop) * rate0 \
-            and rv.rms <= (1.0 + st.min_validation_drop) * cur.val.rms
-        if rv.rms <= need * cur.val.rms or by_rate:       # information criteria on the fit data
+        if validates(F.n_params, cur.val.rms, rv.rms, rate0, rate1, st):     # information criteria on the fit data
             rf = evaluate(F.plant, fit, record=True)
             drop = cur.bic - bic(rf.e, F.n_params, cur.n_eff)
             rdrop = cur.bic_rate - bic(fit.windows.rate(rf.e)[0], F.n_params, cur.n_eff_rate)

@@ -14,7 +14,7 @@ from identification.loop.fit_engine import Data
 from identification.loop.result import Step
 from identification.loop.settings import LoopSettings
 
-__all__ = ["OUT_OF_LIBRARY", "passes", "proxy_for", "rank"]
+__all__ = ["OUT_OF_LIBRARY", "passes", "proxy_for", "rank", "validates"]
 
 #: free-form dependences along variables that no library effect models; a candidate that
 #: explains clearly less than one of them is a proxy and is not accepted
@@ -69,13 +69,28 @@ def rank(step: Step, cur, st: LoopSettings) -> tuple:
     return (0, step.rate_bic_drop)
 
 
+def validates(n_params: int, rms0: float, rms1: float, rate0: float, rate1: float, st: LoopSettings) -> bool:
+    """The validation part of :func:`passes`, on the validation RMS of the output error (``rms0`` before,
+    ``rms1`` with the candidate) and of its rate (``rate0``, ``rate1``): the candidate may pass at all
+    (the loop computes the BIC on the fit data only for those)."""
+    return _level_validates(n_params, rms0, rms1, st) or _rate_validates(n_params, rms0, rms1, rate0, rate1, st)
+
+
+def _level_validates(n_params, rms0, rms1, st: LoopSettings) -> bool:
+    return rms1 <= (1.0 if n_params <= 0 else 1.0 - st.min_validation_drop) * rms0
+
+
+def _rate_validates(n_params, rms0, rms1, rate0, rate1, st: LoopSettings) -> bool:
+    return (n_params > 0 and rate1 <= (1.0 - st.min_validation_drop) * rate0
+            and rms1 <= (1.0 + st.min_validation_drop) * rms0)
+
+
 def _on_level(step: Step, cur, st: LoopSettings) -> bool:
-    return (step.bic_drop > st.min_bic_drop and step.rms_after <= (1 - st.min_validation_drop) * cur.val.rms
-             and step.improved_fraction >= st.min_improved_seeks)
+    return (step.bic_drop > st.min_bic_drop and _level_validates(step.n_params, cur.val.rms, step.rms_after, st)
+            and step.improved_fraction >= st.min_improved_seeks)
 
 
 def _on_rate(step: Step, cur, st: LoopSettings) -> bool:
     return (step.rate_bic_drop > st.min_bic_drop
-            and step.rate_after <= (1 - st.min_validation_drop) * step.rate_before
-            and step.rms_after <= (1 + st.min_validation_drop) * cur.val.rms
+            and _rate_validates(step.n_params, cur.val.rms, step.rms_after, step.rate_before, step.rate_after, st)
             and step.rate_improved_fraction >= st.min_improved_seeks)

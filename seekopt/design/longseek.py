@@ -239,11 +239,9 @@ class LongSeekDesigner(StepDesigns, SeekBuild):
         design on the design plant AND over the set (its predicted worst against the reference's set
         overhead, :meth:`rest_to_rest_overhead`): a robust composition whose worst case arrives much later
         than a rest-to-rest design's would buy its speed with the drives the set stands for."""
-        lim = self._composition_limit()
-        st = self.accel_step()
         if abs(K) >= self.long_from_track():
-            return plan_seek(st, K, self.n_floor(), self._n_vmax(), self.settle, current_limit_a=lim)
-        plan = plan_seek(st, K, COMPOSE_FROM_SAMPLES, self._n_vmax(), self.settle, current_limit_a=lim)
+            return self._plan_from(K, self.n_floor())
+        plan = self._plan_from(K, COMPOSE_FROM_SAMPLES)
         if plan is None:
             return None
         from seekopt.design.profiles import t_bang_bang
@@ -252,6 +250,12 @@ class LongSeekDesigner(StepDesigns, SeekBuild):
         ok = (plan[2] <= SETTLE_RATIO * (tbb + o_nom - OVERHEAD_SPREAD)
               and plan[3] <= SETTLE_RATIO * (tbb + o_set - OVERHEAD_SPREAD))
         return plan if ok else None
+
+    def _plan_from(self, K: float, n_lo: int):
+        """:func:`~seekopt.design.accel_step.plan_seek` of ``K`` tracks with at least ``n_lo`` samples at ``I0``,
+        ``n`` capped at ``vmax``, within the composition's current limit."""
+        return plan_seek(self.accel_step(), K, n_lo, self._n_vmax(), self.settle,
+                         current_limit_a=self._composition_limit())
 
     def _n_vmax(self) -> float:
         v = self.spec.vmax_track_s
@@ -358,8 +362,7 @@ class LongSeekDesigner(StepDesigns, SeekBuild):
         ``n_floor`` samples at ``I0`` on), whatever the dispatch."""
         K = self.check_seek(tracks)
         t0, fresh = time.process_time(), self._accel is None
-        lim = self._composition_limit()
-        plan = plan_seek(self.accel_step(), K, self.n_floor(), self._n_vmax(), self.settle, current_limit_a=lim)
+        plan = self._plan_from(K, self.n_floor())
         if plan is None:
             raise LongSeekError(f"no acceleration-step plan settles the seek of {K:g} tracks on every plant")
         return self._design_accel(K, *plan, t0=t0, fresh=fresh)

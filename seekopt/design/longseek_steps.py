@@ -139,9 +139,8 @@ class StepDesigns:
         H = step.n + 4 * self.tail
         mp = self._nominal_maps(H)
         u, r = step.extended(H)
-        e = np.convolve(mp.y_u[:H], u)[:H] + np.convolve(mp.y_r[:H], r)[:H] - r
-        i = (np.stack([np.convolve(mp.i_u[:H, l], u)[:H] + np.convolve(mp.i_r[:H, l], r)[:H]
-                       for l in range(self.L)], axis=1))
+        y, i = mp.response(u, r, H)
+        e = y - r
         S = max(settle_index(e, self.settle) or 0, step.n)
         if np.max(np.abs(e[-self.tail:])) > 0.01 * self.settle:
             raise LongSeekError(f"velocity step to {step.velocity_track_s:g} track/s: the loop has not caught "
@@ -205,16 +204,14 @@ class StepDesigns:
         Hc = hi + 4 * self.tail        # the nominal linear loop: error and currents until they die out
         mp = self._nominal_maps(Hc)
         uu, rr = st.extended(Hc)
-        e = np.convolve(mp.y_u[:Hc], uu)[:Hc] + np.convolve(mp.y_r[:Hc], rr)[:Hc] - rr
+        y, st.current_sub_a = mp.response(uu, rr, Hc)
+        e = y - rr
         if np.max(np.abs(e[-self.tail:])) > 0.01 * self.settle:
             raise LongSeekError(f"acceleration step: the loop has not caught the parabola {Hc} samples later")
         st.error_track = np.r_[e, 0.0]
         if len(self.plants) > 1:      # every plant of the set (calibrated maps), for the plan's worst case
-            es = [np.convolve(q.y_u[:Hc], uu)[:Hc] + np.convolve(q.y_r[:Hc], rr)[:Hc] - rr
-                  for q in self._loop_maps(Hc)[1:]]
+            es = [q.response(uu, rr, Hc, currents=False)[0] - rr for q in self._loop_maps(Hc)[1:]]
             st.set_error_track = np.vstack([np.r_[x, 0.0] for x in es])
-        st.current_sub_a = np.stack([np.convolve(mp.i_u[:Hc, l], uu)[:Hc] + np.convolve(mp.i_r[:Hc, l], rr)[:Hc]
-                                     for l in range(self.L)], axis=1)
         st.settle_samples = int(max(settle_index(e, self.settle) or 0, hi))
         st.meta["design_cpu_s"] = time.process_time() - t0
         self._accel = st

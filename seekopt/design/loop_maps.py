@@ -64,6 +64,20 @@ class LoopMaps:
         if not finite or np.max(np.abs(self.y_r[-10:])) > 1e3:
             raise ValueError("closed loop of this plant and controller is unstable")
 
+    def response(self, u, r, n: int, currents: bool = True):
+        """``(y [track], i (n, L) [A] or None)``: the loop's position and sub-step currents (without the hold
+        ``hold_a``) over ``n`` samples for feedforward ``u`` [A] and reference ``r`` [track] from rest at 0,
+        by superposition of its impulse responses (``y = h_yu * u + h_yr * r``, ``i`` likewise); ``currents``
+        False: ``i`` is None.  ``n`` at most :attr:`horizon`."""
+        u, r = np.asarray(u, dtype=float)[:n], np.asarray(r, dtype=float)[:n]
+        # response first: np.convolve sums in the order of its arguments when they are equally long
+        y = np.convolve(self.y_u[:n], u)[:n] + np.convolve(self.y_r[:n], r)[:n]
+        if not currents:
+            return y, None
+        i = np.stack([np.convolve(self.i_u[:n, l], u)[:n] + np.convolve(self.i_r[:n, l], r)[:n]
+                      for l in range(self.L)], axis=1)
+        return y, i
+
     def position_rows(self, rows, ncols):
         """``(T_yu, T_yr, s_yr[rows])`` for samples ``rows`` and ``ncols`` input samples."""
         rows = np.asarray(rows, dtype=int)

@@ -152,12 +152,9 @@ def play_linear(maps, profile, n: int):
     K = float(profile.tracks)
     u = np.asarray(profile.current_a, dtype=float)
     dr = np.asarray(profile.reference_track, dtype=float) - K
-    m = min(len(u), n)
-    y = np.convolve(u[:m], maps.y_u[:n])[:n] + np.convolve(dr[:m], maps.y_r[:n])[:n] + K * maps.s_yr[:n]
-    cur = np.empty((n, maps.L))
-    for l in range(maps.L):
-        cur[:, l] = (np.convolve(u[:m], maps.i_u[:n, l])[:n] + np.convolve(dr[:m], maps.i_r[:n, l])[:n]
-                     + K * maps.s_ir[:n, l] + maps.hold_a)
+    y, cur = maps.response(u, dr, n)
+    y = y + K * maps.s_yr[:n]
+    cur = cur + K * maps.s_ir[:n] + maps.hold_a
     return y - K, cur
 
 

@@ -235,16 +235,9 @@ def block_parts(blocks, n: int, N: int):
 def assemble_blocks(blocks, n: int, N: int):
     """``(A0, A1)``: row blocks ``(a_v, a_q, t)`` placed into two ``(rows, n)`` arrays -- ``a_v`` on the
     ``N`` feedforward columns and ``t`` (a number) on the epigraph column of ``A0``, ``a_q`` on the
-    reference columns ``N..`` of ``A1`` (one allocation each, no full-width copies per block)."""
-    m = sum(v.shape[0] for v, _, _ in blocks)
-    A0, A1 = np.zeros((m, n)), np.zeros((m, n))
-    r = 0
-    for v, q, t in blocks:
-        k = v.shape[0]
-        A0[r:r + k, :N] = v
-        if q is not None:
-            A1[r:r + k, N:N + q.shape[1]] = q
-        if t is not None:
-            A0[r:r + k, -1] = t
-        r += k
+    reference columns ``N..`` of ``A1``: :func:`block_parts` written out at full width."""
+    (c0, P0), (c1, P1) = block_parts(blocks, n, N)
+    A0, A1 = np.zeros((P0.shape[0], n)), np.zeros((P1.shape[0], n))
+    A0[:, c0] = P0
+    A1[:, c1] = P1
     return A0, A1
