@@ -121,8 +121,9 @@ def prepare(case: str, out: Path, seeks: int, seed: int = 7) -> dict:
     return info
 
 
-def play(case: str, prof: Profile, T0: float, tail_s: float = 0.015) -> dict:
-    """Play ``prof`` on the independent drive of ``case`` (noise-free) from rest at ``T0``."""
+def play(case: str, prof: Profile, T0: float, tail_s: float = 0.015, with_pes: bool = False) -> dict:
+    """Play ``prof`` on the independent drive of ``case`` (noise-free) from rest at ``T0``: settle [ms],
+    peak sub-step command [A], the drive's holding current [A] (and the PES [track] if ``with_pes``)."""
     drive = nss_drive(truth(case), noise=False)
     fs = drive.sample_rate_hz
     if abs(fs - prof.sample_rate_hz) > 1e-9 * fs:
@@ -132,8 +133,11 @@ def play(case: str, prof: Profile, T0: float, tail_s: float = 0.015) -> dict:
     tr = run(drive, uff + hold, r + T0, position0=T0, current0=hold)
     pes = tr.true_position_track - (T0 + prof.tracks)
     ts = settle_time(pes, fs, BAND)
-    return {"settle_ms": ts * 1e3, "peak_a": float(np.max(np.abs(tr.current_sub_a))), "hold_a": hold,
-            "final_pes_track": float(pes[-1])}
+    out = {"settle_ms": ts * 1e3, "peak_a": float(np.max(np.abs(tr.current_sub_a))), "hold_a": hold,
+           "final_pes_track": float(pes[-1])}
+    if with_pes:
+        out["pes"] = pes
+    return out
 
 
 def seekopt_play(plant_json: Path, ctrl_json: Path, prof: Profile, T0: float) -> dict:
