@@ -10,7 +10,7 @@ import pytest
 
 from seekopt.design import solvers as solvmod
 from seekopt.design.designer import SeekDesigner
-from seekopt.design.problem import SeekProblem, SolverSettings
+from seekopt.design.problem import BASE_FALLBACKS, SeekProblem, SolverSettings
 from seekopt.drive.controller import Controller
 from seekopt.drive.presets import default_truth_plant
 from tests.test_daqp_solver import _random_qps, _seek_qps
@@ -71,12 +71,12 @@ def test_chain_moves_on_from_piqp_trouble_and_piqp_proves_for_the_chain():
 
 @needs_piqp
 def test_designer_with_piqp_first_fallback_designs_the_same(plant_ctrl):
-    """PIQP as the first fallback of the one-plant designer replaces daqp's phase-1 proofs (none run),
-    and the lengths are the default chain's."""
+    """PIQP as the first fallback of the one-plant designer (the default where the package is installed)
+    replaces daqp's phase-1 proofs (none run), and the lengths are those of the chain without PIQP."""
     plant, ctrl = plant_ctrl
-    base = SeekDesigner(SeekProblem(plant, ctrl, IMAX))
-    fb = ("piqp",) + SolverSettings().fallbacks
-    alt = SeekDesigner(SeekProblem(plant, ctrl, IMAX, solver=SolverSettings(fallbacks=fb)))
+    base = SeekDesigner(SeekProblem(plant, ctrl, IMAX, solver=SolverSettings(fallbacks=BASE_FALLBACKS)))
+    alt = SeekDesigner(SeekProblem(plant, ctrl, IMAX))
+    assert alt.settings.chain[:2] == (solvmod.DAQP_PKG, solvmod.PIQP)
     for K in (50.0, 500.0):
         a, b = base.design(K), alt.design(K)
         assert a.settle_samples == b.settle_samples
@@ -86,8 +86,31 @@ def test_designer_with_piqp_first_fallback_designs_the_same(plant_ctrl):
 
 
 def test_piqp_missing_is_an_import_error(monkeypatch):
-    """Without the optional package, asking for ``piqp`` fails loudly (never a silent other solver)."""
+    """Without the optional package, asking for ``piqp`` fails loudly (never a silent other solver), and
+    the default chain is the one without it."""
     monkeypatch.setitem(sys.modules, "piqp", None)
     with pytest.raises(ImportError):
         solvmod.make_qp_solver(3, 2, solvmod.PIQP)
-    assert not solvmod.piqp_available()
+    assert not solvmod.piqp_available() and not solvmod.piqp_installed()
+    assert SolverSettings().fallbacks == BASE_FALLBACKS
+
+
+@needs_piqp
+def test_default_chain_asks_piqp_first_and_free_rows_change_nothing():
+    """Where the package is installed PIQP is the first fallback.  Rows without bounds (the full QP's free
+    rows) are left out of PIQP's problem: the same answer as without them, zero multipliers on them."""
+    assert solvmod.piqp_installed() and SolverSettings().fallbacks == (solvmod.PIQP,) + BASE_FALLBACKS
+    rng = np.random.default_rng(3)
+    n = 6
+    M = rng.standard_normal((n, n))
+    H, g = M @ M.T + np.eye(n), rng.standard_normal(n)
+    A = rng.standard_normal((4, n))
+    lba, uba = np.array([-1.0, -0.2, 0.3, -0.5]), np.array([1.0, 0.2, 0.3, 0.5])     # an equality too
+    box = (-np.ones(n), np.ones(n))
+    a = solvmod.PiqpQP(n, 4).solve(H, g, A, lba, uba, *box)
+    free = rng.standard_normal((3, n))
+    b = solvmod.PiqpQP(n, 7).solve(H, g, np.vstack([A[:2], free, A[2:]]),
+                                   np.r_[lba[:2], [-np.inf] * 3, lba[2:]], np.r_[uba[:2], [np.inf] * 3, uba[2:]], *box)
+    assert a.outcome is b.outcome is solvmod.QPStatus.OPTIMAL
+    assert np.allclose(a.x, b.x, atol=1e-9) and np.all(b.lam_a[2:5] == 0.0)
+    assert np.allclose(b.lam_a[[0, 1, 5, 6]], a.lam_a, atol=1e-8)

@@ -19,10 +19,10 @@ from identification.model.plant import ModalPlant, atomic_write_text
 from seekopt.design.problem_checks import (ProblemError, check_closed_loop, fraction, nonnegative_s, positive,
                                            samples_within)
 from seekopt.design.robust import RobustSpec
-from seekopt.design.solvers import DAQP_PKG, QP_SOLVERS
+from seekopt.design.solvers import DAQP_PKG, PIQP, QP_SOLVERS, piqp_installed
 from seekopt.drive.loopcheck import closed_loop_poles
 
-__all__ = ["ProblemError", "SolverSettings", "SeekProblem", "check_closed_loop", "band_tail_samples", "SIZE_CLASSES",
+__all__ = ["ProblemError", "SolverSettings", "BASE_FALLBACKS", "default_fallbacks", "SeekProblem", "check_closed_loop", "band_tail_samples", "SIZE_CLASSES",
            "TAIL_MIN_SAMPLES", "TAIL_CYCLES", "LIGHT_DAMPING", "TAIL_MAX_S", "BAND_MARGIN", "DRIFT_BAND_MARGIN",
            "default_band_margin"]
 
@@ -68,6 +68,24 @@ LIGHT_DAMPING = 0.1
 TAIL_MAX_S = 0.03
 
 
+#: The fallbacks without PIQP (the chain when the optional ``piqp`` package is not installed).
+BASE_FALLBACKS = ("daqp", "daqp_prox", "qpoases", "highs")
+
+
+def default_fallbacks() -> tuple:
+    """:attr:`SolverSettings.fallbacks` by default: PIQP first when the optional package is installed
+    (``seekopt[piqp]``), then :data:`BASE_FALLBACKS`.
+
+    Why PIQP first: on the long robust rest-to-rest seeks of a sweep (80-110 samples, cond(H) 1e10-4e11) daqp
+    cycles on some reduced QPs, and the rest of the chain was the cost -- casadi's daqp and ``daqp_prox``
+    cycle too, qpOASES stops at its recalculation limit, HiGHS at its time limit, and then the full QP
+    (5392 rows) went through the chain again, qpOASES answering after 32 s CPU.  PIQP solved each of those
+    reduced QPs in 0.02-0.18 s (robust 400k TPI / 5456 tracks: 54.8 -> 13 s CPU, the same settle samples;
+    docs/results_sweep_scaling.md, session 9).  As the first fallback it also re-checks daqp's unproven
+    "infeasible" with a verifiable certificate (docs/results_speed.md, "QP solvers other than daqp")."""
+    return ((PIQP,) if piqp_installed() else ()) + BASE_FALLBACKS
+
+
 @dataclass
 class SolverSettings:
     """How the seek QPs are solved (not what is designed).
@@ -82,7 +100,9 @@ class SolverSettings:
     fallbacks : tuple of str
         Solvers tried, in order, on the same QP when the primary ends in numerical trouble (daqp
         cycling), an iteration limit or an answer that fails the constraint re-check -- before
-        anything is called infeasible (:class:`seekopt.design.solvers.SolverChain`).  The first
+        anything is called infeasible (:class:`seekopt.design.solvers.SolverChain`).  Default
+        :func:`default_fallbacks`: ``piqp`` first when that optional package is installed, then
+        :data:`BASE_FALLBACKS`.  The first
         fallback also re-checks an "infeasible" of ``daqp_pkg`` that the answer rests on (the package
         returns no usable multipliers with it; :class:`seekopt.design.working_set.WorkingSetQP`);
         ``daqp_prox`` (the package with proximal iterations) answers where an ill-conditioned Hessian
@@ -114,7 +134,7 @@ class SolverSettings:
     """
 
     qp_solver: str = DAQP_PKG
-    fallbacks: tuple = ("daqp", "daqp_prox", "qpoases", "highs")
+    fallbacks: tuple = field(default_factory=default_fallbacks)
     options: dict = field(default_factory=dict)
     max_samples: int = 512
     size_classes: tuple = SIZE_CLASSES
