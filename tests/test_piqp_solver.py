@@ -10,7 +10,8 @@ import pytest
 
 from seekopt.design import solvers as solvmod
 from seekopt.design.designer import SeekDesigner
-from seekopt.design.problem import BASE_FALLBACKS, SeekProblem, SolverSettings
+from seekopt.design.problem import SeekProblem, SolverSettings
+from seekopt.design.solver_settings import BASE_FALLBACKS
 from seekopt.drive.controller import Controller
 from seekopt.drive.presets import default_truth_plant
 from tests.test_daqp_solver import _random_qps, _seek_qps
