@@ -292,8 +292,8 @@ class SolverChain:
             # answers those QPs in 0.02-0.2 s where the retry took up to 19 s CPU and failed)
             i = self.names.index(name) if name in self.names else -1
             nxt = self.names[i + 1] if 0 <= i < len(self.names) - 1 else None
-            self._solvers[name] = make_qp_solver(self.n, self.m, name, self.options.get(name),
-                                                 prox_retry=nxt != PIQP)
+            kw = {"prox_retry": False} if name == DAQP_PKG and nxt == PIQP else {}
+            self._solvers[name] = make_qp_solver(self.n, self.m, name, self.options.get(name), **kw)
             if self._on_build is not None:
                 self._on_build(name)
         return self._solvers[name]
