@@ -8,7 +8,7 @@ Measured (``studies/qp_solvers.py``, the 229 nominal / 406 robust reduced QPs of
 truth plant): PIQP is no faster than the warm-started ``daqp`` package on the solves (1.2x / 2.6x its CPU),
 but it proved 32 of the 34 nominal and 50 of the 54 robust "infeasible" reduced QPs with multipliers that
 pass :func:`seekopt.design.certificates.proves_infeasible`, where the ``daqp`` package's multipliers prove
-none of them.  It is optional (``pip install seekopt[piqp]``): without the package, building it raises
+none of them.  It is a dependency of seekopt (``pyproject.toml``); on a machine without the package, building it raises
 :class:`ImportError`.
 """
 from __future__ import annotations

@@ -19,13 +19,13 @@ SIZE_CLASSES = (8, 16, 24, 32, 48, 64, 96, 128, 144, 160, 176, 192, 208, 224, 24
                 448, 512)
 
 
-#: The fallbacks without PIQP (the chain when the optional ``piqp`` package is not installed).
+#: The fallbacks without PIQP (the chain where the ``piqp`` package is not installed).
 BASE_FALLBACKS = ("daqp", "daqp_prox", "qpoases", "highs")
 
 
 def default_fallbacks() -> tuple:
-    """:attr:`SolverSettings.fallbacks` by default: PIQP first when the optional package is installed
-    (``seekopt[piqp]``), then :data:`BASE_FALLBACKS`.
+    """:attr:`SolverSettings.fallbacks` by default: PIQP first when the package is installed
+    (a dependency: absent only where it could not be installed), then :data:`BASE_FALLBACKS`.
 
     Why PIQP first: on the long robust rest-to-rest seeks of a sweep (80-110 samples, cond(H) 1e10-4e11) daqp
     cycles on some reduced QPs, and the rest of the chain was the cost -- casadi's daqp and ``daqp_prox``
