@@ -47,7 +47,7 @@ from seekopt.app.commands.common import parse_duration  # noqa: E402
 from seekopt.design.baselines import baseline_profile  # noqa: E402
 from seekopt.design.designer import DesignInfeasible, SeekDesigner  # noqa: E402
 from seekopt.design.family import Drift, calibrated, drifted, played_on  # noqa: E402
-from seekopt.design.guard import curve_gain, plant_gain_curve  # noqa: E402
+from seekopt.design.guard_bands import curve_gain, plant_gain_curve  # noqa: E402
 from seekopt.design.metrics import evaluate_profile  # noqa: E402
 from seekopt.design.problem import SeekProblem  # noqa: E402
 from seekopt.design.profiles import t_bang_bang  # noqa: E402

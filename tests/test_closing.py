@@ -184,13 +184,7 @@ def test_benchmark_rro_alone_gives_periodic_disturbance(noise_seed):
     assert R.error_after["rms_track"] < 0.95 * R.error_before["rms_track"]
 
 
-@pytest.mark.parametrize("effect", [
-    pytest.param("current_saturation", marks=pytest.mark.xfail(strict=True, reason=(
-        "measured on the independent drive (seed 2006, limit 0.277 A): the saturation candidate is 'not "
-        "applicable' -- its rule counts clipped samples of the logged MEAN current (47 above the limit in "
-        "the whole log), while the drive clips its 2x-rate sub-step commands (94 sub-steps, up to 0.357 A); "
-        "the validation RMS stays at 1.02 track (1.14 before) against ~0.1 track without the effect"))),
-    "input_delay"])
+@pytest.mark.parametrize("effect", ["current_saturation", "input_delay"])
 def test_single_effect_fast(effect):
     _check_single(drive_case(effect, 2000 + study.EFFECTS.index(effect), 36), effect)
 

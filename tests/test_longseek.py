@@ -279,6 +279,25 @@ def test_cli_design_long_seek_without_vmax(tmp_path, plant, capsys):
     assert "coasts" in capsys.readouterr().out and "kind: long_seek" in out.read_text()
 
 
+def test_cli_long_seek_on_a_set_prints_and_writes_its_played_predictions(tmp_path, plant, capsys):
+    """A long seek designed on the CLI's default set (``--drift`` from the data, 3 plants here) reports what a
+    rest-to-rest design reports: the settle played on every plant of the set, the worst and the binding plant,
+    and the guard's residual, printed and in the metadata; the played worst is the sample the designer's
+    superposition predicted (``set_settle_samples_predicted``), at most one sample apart."""
+    pj = tmp_path / "plant.json"
+    plant.to_json(pj)
+    out = tmp_path / "p.csv"
+    assert main(["design", "--plant", str(pj), "--tracks", "20000", "--imax", "0.3", "--vmax", "2e6",
+                 "-o", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "predicted worst over the" in text and "unmodelled-mode guard" in text, text
+    meta = dict(line[2:].split(": ", 1) for line in out.read_text().splitlines() if line.startswith("# "))
+    assert meta["kind"] == "long_seek" and int(meta["robust_set_size"]) >= 2
+    worst = float(meta["predicted_settle_worst_ms"]) * 1e-3 * 26400.0
+    assert float(meta["predicted_settle_nominal_ms"]) <= float(meta["predicted_settle_worst_ms"])
+    assert abs(worst - int(meta["set_settle_samples_predicted"])) <= 1.0 + 1e-6, (worst, meta)
+
+
 def test_rest_to_rest_up_to_keeps_the_qp_above_long_from_track(plant, ctrl, free):
     """``rest_to_rest_up_to_track`` moves the dispatch: a seek just past ``long_from_track`` is designed
     rest-to-rest when the user asks for it, and settles no later than the acceleration step's design."""

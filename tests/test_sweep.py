@@ -346,3 +346,17 @@ def test_optimal_sweep_deterministic_across_engines(tmp_path):
     for other in ("b", "c"):
         pd.testing.assert_frame_equal(a, numbers(tmp_path / other), check_exact=True)
     assert (a[a["kind"] == "optimal"]["status"] == "ok").all()
+
+
+def test_code_hash_covers_every_design_module():
+    """A resumed sweep warns when its saved cells came from other code: the provenance hash covers every
+    module of the design chain, the simulator and the plant -- also modules split out later (qp_rows,
+    guard_bands ...), which a hand-kept list had missed."""
+    import seekopt.design as design
+    from seekopt.evaluate.sweep_config import code_files, code_hash
+    covered = {str(f) for _, f in code_files()}
+    for pkg in (design,):
+        for f in Path(pkg.__file__).parent.glob("*.py"):
+            assert str(f) in covered, f
+    assert any(n == "seekopt.drive.simulator" for n, _ in code_files())
+    assert len(code_hash()) == 12

@@ -54,6 +54,9 @@ class LoopSettings:
 
     min_wald_chi2 : float
         Cluster-robust Wald chi^2 a candidate's own parameters must reach on the fit data [-].
+    min_clipped_seeks : int
+        Fit seeks whose commanded current the saturation limit found must clip for the
+        current-saturation candidate to apply [-].
     max_mode_zeta : float
         Largest damping ratio of an extra mode [-] (beyond: not a resonance).
     damped_mode_zeta : float
@@ -100,6 +103,7 @@ class LoopSettings:
     min_window_samples: int = 32
     effect_step_s: float = 5e-6
     min_wald_chi2: float = 16.0
+    min_clipped_seeks: int = 1
     max_mode_zeta: float = 0.5
     damped_mode_zeta: float = 0.3
     bias_knots: int = 65

@@ -143,7 +143,8 @@ class AccelStepQP:
 
     def __init__(self, maps, k0s, nmax, horizon, k0, fs, delay_samples, imax, i0, band, nlo, settings,
                  rho=1e-2, rho_w=1e-3, quiet=0.1, quiet_after=32, hf=None, set_lag=0):
-        from seekopt.design.qp import pes_row_samples, toeplitz_rows
+        from seekopt.design.loop_maps import toeplitz_rows
+        from seekopt.design.qp_samples import pes_row_samples
         from seekopt.design.solvers import SolverChain
         t0 = time.perf_counter()
         N, H, L = int(nmax), int(horizon), maps[0].L

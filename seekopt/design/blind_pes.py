@@ -79,7 +79,7 @@ def blind_pes_plants(plants: list) -> list:
 
 def blind_pes_freqs(bands: list, points: int) -> tuple:
     """``(freqs_hz, gains)``: ``points`` frequencies [Hz] evenly across each ``nyquist`` band of
-    ``bands`` (:class:`seekopt.design.guard.GuardBand`) and the band's gain at each."""
+    ``bands`` (:class:`seekopt.design.guard_bands.GuardBand`) and the band's gain at each."""
     f, g = [], []
     for b in bands:
         if b.reason != "nyquist" or points <= 0 or b.gain <= 0:

@@ -39,6 +39,7 @@ from identification.model.plant import ModalPlant
 
 from seekopt.design import blind_pes as _blind, guard as _guard, qp as _qp
 from seekopt.design.blas import blas_limit
+from seekopt.design.guard_bands import plant_gain_curve, problem_bands
 from seekopt.design.predict import feedforward_scale, set_loop_maps
 from seekopt.design.metrics import DEFAULT_TAIL_S
 from seekopt.design.problem import ProblemError, SeekProblem, check_closed_loop
@@ -96,8 +97,8 @@ class SeekDesigner(SettleSearch):
         self.solver_name = p.solver.qp_solver
         self.beta, self.gamma = p.band_margin, p.current_margin
         self.hf_guard, self.hf_gain, self.hf_tol = p.hf_guard, p.hf_gain, p.hf_tol
-        self.guard_bands = _guard.problem_bands(p)     # Nyquist, controller notches, blind bands
-        self.guard_curve = _guard.plant_gain_curve(p.plant)   # what the identification could have seen
+        self.guard_bands = problem_bands(p)     # Nyquist, controller notches, blind bands
+        self.guard_curve = plant_gain_curve(p.plant)   # what the identification could have seen
         self.slew = p.slew_a_per_s
         # minimum seek-settle designs: the inputs may go on this many samples after the settle sample
         # (objective (a) and the shortest-feasible probe keep the seek length they are given)

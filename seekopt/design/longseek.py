@@ -88,8 +88,8 @@ from __future__ import annotations
 import math
 import time
 
-from seekopt.design import guard as _guard
 from seekopt.design.accel_step import AccelStep, plan_seek
+from seekopt.design.guard_bands import plant_gain_curve, problem_bands
 from seekopt.design.longseek_spec import (I0_FRACTION, LongSeekError, LongSeekSpec, stroke_from_plant,
                                           t_accel_coast_decel, vmax_from_plant)
 from seekopt.design.longseek_build import SeekBuild, rigid_peak_velocity
@@ -152,8 +152,8 @@ class LongSeekDesigner(StepDesigns, SeekBuild):
         self.fs, self.L = p.sample_rate_hz, int(p.controller.fast_multiple)
         self.beta, self.gamma = p.band_margin, p.current_margin
         self.hf_tol = p.hf_tol
-        self.guard_bands = _guard.problem_bands(p)     # Nyquist, controller notches, blind bands
-        self.guard_curve = _guard.plant_gain_curve(p.plant)
+        self.guard_bands = problem_bands(p)     # Nyquist, controller notches, blind bands
+        self.guard_curve = plant_gain_curve(p.plant)
         self.solver = p.solver.qp_solver
         if abs(p.plant.bias_a) >= self.gamma * self.imax:
             raise LongSeekError(f"bias {p.plant.bias_a:g} A leaves no current for a seek at Imax {self.imax:g} A")

@@ -29,7 +29,6 @@ from __future__ import annotations
 import copy
 import math
 import time
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -41,7 +40,8 @@ from seekopt.design.feasibility import (compensate, hold_check, hold_current, kt
                                         play_seek, resolve_start)
 from seekopt.design.metrics import SeekMetrics
 from seekopt.design.predict import set_loop_maps
-from seekopt.design.nlp_search import _search_length, _stretch, _verified_samples
+from seekopt.design.nlp_result import DesignUnholdable, NLPDesignError, NLPDesignResult
+from seekopt.design.nlp_search import _search_length, _verified_samples, _warm_for
 from seekopt.design.nlp_problem import (BUILD_COUNT, NLPSettings, NLPSolve, RobustSpread, SeekNLP,
                                         close_sample, closed_loop_sample)
 from seekopt.design.problem import SeekProblem
@@ -55,50 +55,13 @@ __all__ = ["NLPSettings", "NLPDesignError", "DesignUnholdable", "NLPSolve", "NLP
 _TIMEOUTS = ("Maximum_WallTime_Exceeded", "Maximum_CpuTime_Exceeded")
 
 
-class NLPDesignError(RuntimeError):
-    """Ipopt failed, ran out of time, or no design passed the full-plant check (never a profile)."""
-
-
 class _Budget(Exception):
     """The NLP budget of one design is spent (a feasible length is known)."""
-
-
-class DesignUnholdable(ValueError):
-    """The drive's feedback cannot hold the band at the target whatever the feedforward."""
 
 
 def needs_nlp(plant: ModalPlant) -> bool:
     """True when the plant has input or force effects (the linear design would ignore them)."""
     return bool(nonlinear_effects(plant))
-
-
-@dataclass
-class NLPDesignResult:
-    """A verified effect-aware design, played on the full plant from ``start_track``.
-
-    ``linear``: the QP design that warm-started it; ``linear_metrics``: that design played on the
-    same full plant from the same start (what ignoring the effects costs)."""
-
-    profile: Profile
-    metrics: SeekMetrics
-    start_track: float
-    settle_samples: int
-    solves: list
-    linear: DesignResult
-    linear_metrics: SeekMetrics
-    build_time_s: float = 0.0
-
-    @property
-    def ipopt_iterations(self) -> int:
-        return sum(s.iterations for s in self.solves)
-
-    @property
-    def ipopt_time_s(self) -> float:
-        return sum(s.wall_s for s in self.solves)
-
-    @property
-    def ipopt_cpu_s(self) -> float:
-        return sum(s.cpu_s for s in self.solves)
 
 
 # ------------------------------------------------------------------------------- designer
@@ -240,32 +203,6 @@ class EffectAwareDesigner:
         imaps: dict = {}                 # the guard's input map (gain, offset) each length's NLP used
         cache: dict = {}
 
-        def _warm_for(n, nmax):
-            """The NLP's starting feedforward and reference for a seek of ``n`` samples (length ``nmax``), and
-            the input map ``(gain, offset)`` along it for the guard rows.
-
-            A shorter seek's NLP answer at rest from ``m < n`` on is a seek of ``n`` samples as it is, with the
-            same worst residual after ``n`` or less: padded with rest, the best of them (lowest residual) starts
-            the NLP, so that the residual the search reads cannot rise with the length.  Time-stretching it
-            instead (the former rule, and still the rule going down) started the NLP at 54 and 62 samples
-            of the combination drive's K = 200 from 50 % far from the 50-sample answer and Ipopt stopped in
-            a worse point: residual 0.80 / 1.32 / 1.36 band at 50 / 54 / 62 samples.  Without a shorter answer:
-            the nearest feasible length, else the warm start, time-stretched to ``n`` samples."""
-            below = [m for m, (_, _, _, res) in cache.items() if m < n and math.isfinite(res)]
-            if below:
-                m = min(below, key=lambda m: (cache[m][3], -m))
-                g, o = imaps[m]            # and its guard's input map, padded at rest: the same guard rows
-                return (np.r_[cache[m][1], np.zeros(nmax - len(cache[m][1]))],
-                        np.r_[cache[m][2], np.zeros(nmax - len(cache[m][2]))],
-                        (np.r_[g, np.ones(n + tin - len(g))], np.r_[o, np.zeros(n + tin - len(o))]))
-            ok_prev = [m for m, (ok, *_ ) in cache.items() if ok]
-            m = min(ok_prev, key=lambda m: abs(m - n)) if ok_prev else n0
-            vb, qb, (g, o) = (cache[m][1], cache[m][2], imaps[m]) if ok_prev else (v_w, q_w, (g_w, o_w))
-            a, b = len(vb), n + tin                                   # input lengths
-            return (np.r_[_stretch(vb, a, b) * (a / b) ** 2, np.zeros(nmax - b)],   # same distance in n samples
-                    np.r_[_stretch(qb, a, b), np.zeros(nmax - b)],
-                    (_stretch(g, len(g), b), _stretch(o, len(g), b) * (len(g) / b) ** 2))   # the plan, time-stretched
-
         def feasible(n, checking=False):
             # ``max_nlps`` bounds the length search; the full-plant check's step-up (at most ``check_steps``
             # lengths above the search's answer) solves its own NLPs: a budget spent by the search must not
@@ -278,7 +215,7 @@ class EffectAwareDesigner:
             if not checking and len(solves) >= st.max_nlps and any(ok for ok, *_ in cache.values()):
                 raise _Budget()
             nlp, spread = self._nlp(n)
-            v0, q0, imap = _warm_for(n, nlp.N)
+            v0, q0, imap = _warm_for(n, nlp.N, tin, cache, imaps, (n0, v_w, q_w, (g_w, o_w)))
             imaps[n] = imap
             rec, v, q = nlp.solve(K, T0, n, self.imax, uh, x0, v0, q0, st.band_margin, st.current_margin, input_tail=tin,
                                   input_map=imap)

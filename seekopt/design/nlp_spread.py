@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-import seekopt.design.qp as _qp
+from seekopt.design.qp_samples import set_row_samples
 
 __all__ = ["RobustSpread"]
 
@@ -17,7 +17,7 @@ class RobustSpread:
     ``maps``: :class:`seekopt.design.qp.LoopMaps` of the set's (linear) plants, nominal first, horizon
     above ``horizon``.  Every other plant's PES [band] and sub-step current [Imax] minus the nominal's
     is linear in the scaled ``(v, q)``: ``dT_u Imax v + dT_r |K| q + K ds_r``.  Band rows of the NLP on
-    the samples ``band_samples`` (the linear designer's rule, :func:`seekopt.design.qp.set_row_samples`
+    the samples ``band_samples`` (the linear designer's rule, :func:`seekopt.design.qp_samples.set_row_samples`
     with its row ``stride``) (:meth:`rows`); :meth:`spread` for checks and the current envelope.
 
     ``current_only``: the last ``current_only`` maps are plants the design holds **only** the current limit
@@ -41,11 +41,11 @@ class RobustSpread:
             raise ValueError(f"{current_only} current-only plants of a set of {self.n} others")
         del self.DY[self.n_band:], self.dy[self.n_band:]
         # robust rows of the NLP: the linear designer's rows of the set's other plants
-        # (seekopt.design.qp.set_row_samples, ``stride`` its thinning of this class) on the samples that can
+        # (seekopt.design.qp_samples.set_row_samples, ``stride`` its thinning of this class) on the samples that can
         # follow a seek of this class (k > nmax_prev; the spread is re-checked on every sample and the
         # simulator plays every sample); currents on every sub-step of the seek and 8 samples more (as the
         # linear designer)
-        kb = _qp.set_row_samples(N, H + 1, stride)
+        kb = set_row_samples(N, H + 1, stride)
         self.band_samples = kb[kb > nmax_prev]
         self.current_substeps = np.arange(min(H, N + 8) * maps[0].L)
 

@@ -1,5 +1,7 @@
-"""The seek-design problem as data (:class:`SeekProblem`, :class:`SolverSettings`), its JSON form,
-and the checks that need no optimiser (:func:`check_closed_loop`).
+"""The seek-design problem as data (:class:`SeekProblem`), its JSON form, and the quantities derived from
+it that need no optimiser (the default band margin, :func:`band_tail_samples`).  How its QPs are solved,
+:class:`SolverSettings`, is in :mod:`seekopt.design.solver_settings`, the checks of its settings and
+:func:`check_closed_loop` in :mod:`seekopt.design.problem_checks` (both re-exported here).
 
 The acados template pattern: the problem is a serialisable description; a
 :class:`seekopt.design.designer.SeekDesigner` is built once from it and then called for many seek
@@ -9,7 +11,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +21,8 @@ from identification.model.plant import ModalPlant, atomic_write_text
 from seekopt.design.problem_checks import (ProblemError, check_closed_loop, fraction, nonnegative_s, positive,
                                            samples_within)
 from seekopt.design.robust import RobustSpec
-from seekopt.design.solvers import DAQP_PKG, QP_SOLVERS
+from seekopt.design.solver_settings import SIZE_CLASSES, SolverSettings  # noqa: F401
+from seekopt.design.solvers import DAQP_PKG
 from seekopt.drive.loopcheck import closed_loop_poles
 
 __all__ = ["ProblemError", "SolverSettings", "SeekProblem", "check_closed_loop", "band_tail_samples", "SIZE_CLASSES",
@@ -49,12 +52,6 @@ def default_band_margin(robust) -> float:
 def _is_drift(robust) -> bool:
     return robust is not None and getattr(robust, "to_dict", lambda: {})().get("kind") == "drift"
 
-#: Seek-length classes [samples]: one QP structure (and solver) per class, built on first use.  Above
-#: 128 samples (seeks of about 2500 tracks and longer) the classes are 1/8 to 1/4 apart: the dense QP's
-#: cost grows steeply with its size (K = 10000: class 256 took 45-75 s per solve, 224 about 25 s).
-SIZE_CLASSES = (8, 16, 24, 32, 48, 64, 96, 128, 144, 160, 176, 192, 208, 224, 240, 256, 288, 320, 352, 384,
-                448, 512)
-
 
 #: The band rows after a seek (:func:`band_tail_samples`): at least this many samples, ...
 TAIL_MIN_SAMPLES = 64
@@ -66,86 +63,6 @@ TAIL_CYCLES = 2.0
 LIGHT_DAMPING = 0.1
 #: ... but never more than this [s] (a lightly damped loop pole below ~70 Hz is a loop problem, not a seek's)
 TAIL_MAX_S = 0.03
-
-
-@dataclass
-class SolverSettings:
-    """How the seek QPs are solved (not what is designed).
-
-    Parameters
-    ----------
-    qp_solver : str
-        Primary solver -- the one place the QP solver is chosen: ``daqp_pkg`` (default: the ``daqp``
-        package called directly, warm-started from the previous length's or round's active set;
-        :class:`seekopt.design.solvers.DaqpQP`), a ``casadi.conic`` plugin (``daqp``: casadi's daqp,
-        the former default, cold starts only; ``qpoases``, ``highs``, ...) or ``ipopt``.
-    fallbacks : tuple of str
-        Solvers tried, in order, on the same QP when the primary ends in numerical trouble (daqp
-        cycling), an iteration limit or an answer that fails the constraint re-check -- before
-        anything is called infeasible (:class:`seekopt.design.solvers.SolverChain`).  The first
-        fallback also re-checks an "infeasible" of ``daqp_pkg`` that the answer rests on (the package
-        returns no usable multipliers with it; :class:`seekopt.design.working_set.WorkingSetQP`);
-        ``daqp_prox`` (the package with proximal iterations) answers where an ill-conditioned Hessian
-        makes both daqps cycle; every fallback has an iteration or time limit (a failed fallback proves
-        nothing: the length is skipped, never waited on).
-    options : dict
-        ``{solver name: plugin options}``.
-    max_samples : int
-        Longest seek considered [samples].
-    size_classes : tuple of int
-        QP size classes [samples] (:data:`SIZE_CLASSES`).
-    thin_above_samples, thin_stride : int
-        Classes above ``thin_above_samples`` carry the non-nominal plants' band rows on every
-        ``thin_stride``-th sample only (nominal rows and current rows are never thinned: thinning
-        current rows let set plants exceed Imax by 5-15 %; band stride 4 let the set's worst settle
-        1.3 ms later at K = 3000).
-    violation_tol : float
-        Largest relative constraint violation accepted from a solver's answer.
-    working_set : bool
-        Solve each QP on its free variables and a working set of its rows, adding back violated rows
-        (:class:`seekopt.design.working_set.WorkingSetQP`; the same optimum on far fewer rows).  A
-        reduced "infeasible" stands only with a verified Farkas certificate or the fallbacks' proof on
-        the reduced QP, else the full QP decides; search steps of the seek-length search take it
-        unproven and the designer confirms the length its answer rests on (``studies/design_speed.py``).
-    blas_threads : int or None
-        BLAS threads while designing (``threadpoolctl``; None: leave as is).  The design's matrices
-        are small: with 2 OpenBLAS threads on this 2-core machine three robust designs took 8-12 s
-        CPU, with 1 thread 1.3-1.6 s (same designs).
-    """
-
-    qp_solver: str = DAQP_PKG
-    fallbacks: tuple = ("daqp", "daqp_prox", "qpoases", "highs")
-    options: dict = field(default_factory=dict)
-    max_samples: int = 512
-    size_classes: tuple = SIZE_CLASSES
-    thin_above_samples: int = 128
-    thin_stride: int = 2
-    violation_tol: float = 1e-3
-    working_set: bool = True
-    blas_threads: int | None = 1
-
-    def __post_init__(self):
-        self.fallbacks = tuple(self.fallbacks)
-        self.size_classes = tuple(int(c) for c in self.size_classes)
-        for name in (self.qp_solver,) + self.fallbacks:
-            if name not in QP_SOLVERS:
-                raise ProblemError(f"unknown QP solver {name!r} (choose from {', '.join(QP_SOLVERS)})")
-        if self.max_samples < 2 or self.thin_stride < 1 or not self.violation_tol > 0:
-            raise ProblemError("solver settings: max_samples >= 2, thin_stride >= 1, violation_tol > 0 required")
-
-    @property
-    def chain(self) -> tuple:
-        """Primary, then fallbacks (duplicates dropped)."""
-        return tuple(dict.fromkeys((self.qp_solver,) + self.fallbacks))
-
-    def to_dict(self) -> dict:
-        d = asdict(self)
-        d["fallbacks"], d["size_classes"] = list(self.fallbacks), list(self.size_classes)
-        return d
-
-    @classmethod
-    def from_dict(cls, d: dict) -> "SolverSettings":
-        return cls(**d)
 
 
 @dataclass(eq=False)
@@ -190,7 +107,7 @@ class SeekProblem:
         allowed residual per mode as a fraction of the settle band.
     guard_notch_depth_db : float or None
         The guard also covers the controller's notches and filter zeros at least this deep
-        (:func:`seekopt.design.guard.controller_notches`; None: not).
+        (:func:`seekopt.design.guard_bands.controller_notches`; None: not).
     guard_bands_hz : tuple
         Further guard bands ``(lo_hz, hi_hz)`` or ``(lo_hz, hi_hz, gain)``.
     blind_pes_points : int

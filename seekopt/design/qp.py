@@ -12,6 +12,8 @@ into Toeplitz rows on demand::
 
 (``l`` the ``L`` current sub-steps of sample ``k``; ``i_hold = -bias_a``).
 
+The QP's pieces: its rows as an operator (:mod:`seekopt.design.qp_rows`), the samples that carry them
+(:mod:`seekopt.design.qp_samples`, re-exported here), its objective (:mod:`seekopt.design.qp_objective`).
 The QP solvers (casadi.conic plugins, Ipopt, the fallback chain) are in :mod:`seekopt.design.solvers`.
 """
 from __future__ import annotations
@@ -22,7 +24,9 @@ import numpy as np
 
 from seekopt.design.loop_maps import LoopMaps, toeplitz_rows
 from seekopt.design.profiles import rigid_endpoint_matrix
+from seekopt.design.qp_objective import seek_objective
 from seekopt.design.qp_rows import SeekRows, assemble_blocks, block_parts
+from seekopt.design.qp_samples import pes_row_samples, set_row_samples
 # solver names re-exported for callers of the former combined module
 from seekopt.design.modal_residual import (dtft, hf_guard_matrix, mode_residual_phasors,  # noqa: F401
                                             mode_residual_rows, mode_residuals)
@@ -33,33 +37,6 @@ __all__ = ["LoopMaps", "toeplitz_rows", "hf_guard_matrix", "mode_residual_phasor
 
 
 # ---------------------------------------------------------------------------- the seek QP
-def pes_row_samples(nmax: int, horizon: int) -> np.ndarray:
-    """Samples carrying settle-band rows: every sample up to ``nmax + 96``, then two adjacent samples of
-    every 4 up to ``nmax + 192`` and of every 8 after (the slow closed-loop tail; the designer re-checks
-    every sample of the nominal plant by simulation).  Pairs, not single samples: a lightly damped mode
-    near Nyquist makes the PES alternate ``a + b (-1)^k`` and rows on every 2nd sample saw only
-    ``|a + b|`` (a robust-set plant at +4 % frequency then exceeded the band on the odd samples)."""
-    edges = [(0, nmax + 96, 1), (nmax + 96, nmax + 192, 4), (nmax + 192, horizon, 8)]
-    parts = []
-    for a, b, s in edges:
-        if a < horizon:
-            k = np.arange(a, min(b, horizon))
-            parts.append(k if s == 1 else k[(k - a) % s < 2])
-    return np.concatenate(parts).astype(int)
-
-
-def set_row_samples(nmax: int, horizon: int, stride: int = 1) -> np.ndarray:
-    """Samples carrying the settle-band rows of the robust set's other plants (not the nominal):
-    :func:`pes_row_samples`, and with ``stride > 1`` (large size classes) the samples before
-    ``nmax + 32`` thinned to two adjacent samples of every ``2 stride`` (pairs, as there).  The one rule of
-    the seek QP (:class:`SeekQP`) and the effect-aware NLP's robust rows
-    (:class:`seekopt.design.nlp_problem.RobustSpread`)."""
-    ks = pes_row_samples(nmax, horizon)
-    stride = max(int(stride), 1)
-    near = ks[ks < nmax + 32]
-    return np.unique(np.r_[near[(near % (2 * stride)) < 2] if stride > 1 else near, ks[ks >= nmax + 32]]).astype(int)
-
-
 class SeekQP:
     """The condensed seek-design QP for seeks that settle within at most ``nmax`` samples (one size class).
 
@@ -89,7 +66,8 @@ class SeekQP:
     * rigid rest-to-rest: ``M u_ff = [K, 0]`` (:func:`seekopt.design.profiles.rigid_endpoint_matrix`);
     * optional slew ``|u_ff(k) - u_ff(k-1)| <= slew / fs``.
 
-    Objective: ``rho |D v|^2 + rho_q |D q|^2 + w_e mean_i,k>=nmax e^2 (+ w_t t^2)``.
+    Objective: ``rho |D v|^2 + rho_q |D q|^2 + w_e mean_i,k>=nmax e^2 (+ w_t t^2)``
+    (:func:`~seekopt.design.qp_objective.seek_objective`).
     The solver of the full QP is built on first use; :meth:`numeric` gives its data as numpy arrays
     (read by the solvers through zero-copy buffers), :meth:`data` as :class:`casadi.DM`.
     """
@@ -223,37 +201,8 @@ class SeekQP:
         self.band_plants = set(band_plants)
         self.slew = slew
         # ---- objective: smoothness, reference smoothness, tail energy (k >= nmax), epigraph
-        D = np.eye(N) - np.eye(N, k=-1)
-        P = np.zeros((n, n))
-        P[:N, :N] += 2 * rho * D.T @ D
-        if nq:
-            P[N:N + nq, N:N + nq] += 2 * rho_q * D.T @ D
-        if epigraph:
-            P[-1, -1] += 2 * w_t
-        P += 2 * eps * np.eye(n)
-        kt = np.arange(Ns, Hn)
-        eblocks, e1 = [], []
-        for m in maps:
-            Tyu, Tyr, syr = m.position_rows(kt, N if self.free_ref else Hn)
-            eblocks.append((imax * Tyu / band, Tyr / band, None) if self.free_ref
-                           else (imax * (Tyu[:, :N] + Tyr @ Rfull) / band, None, None))
-            e1.append((syr - 1.0) / band if self.free_ref else -np.ones(len(kt)) / band)
-        e1 = np.concatenate(e1)
-        # the blocks stacked on their own columns only (feedforward E0v, reference E1q; the full-width
-        # arrays were zero elsewhere): products on those, a quarter of the full-width work, the same numbers
-        E0v = np.concatenate([b[0] for b in eblocks])
-        E1q = np.concatenate([b[1] for b in eblocks]) if nq else None
-        w = 2 * w_e / E0v.shape[0]
-        v, q = slice(0, N), slice(N, N + nq)
-        self._P0, self._P1, self._P2 = P.copy(), np.zeros((n, n)), np.zeros((n, n))
-        self._q1, self._q2 = np.zeros(n), np.zeros(n)       # g = K q1 + K|K| q2
-        self._P0[v, v] += (w * E0v.T) @ E0v
-        self._q1[v] = (w * E0v.T) @ e1
-        if nq:
-            self._P1[v, q] = w * (E0v.T @ E1q)
-            self._P1[q, v] = w * (E1q.T @ E0v)
-            self._P2[q, q] = (w * E1q.T) @ E1q
-            self._q2[q] = (w * E1q.T) @ e1
+        self._P0, self._P1, self._P2, self._q1, self._q2 = seek_objective(     # g = K q1 + K|K| q2
+            maps, Ns, Hn, N, None if self.free_ref else Rfull, imax, band, epigraph, rho, rho_q, w_e, w_t, eps)
         self._dm_cache = None      # casadi copies of the full matrices, made on first full solve
         self._H_K, self._H = None, None          # H of the last |K| (hessian())
         self._mat_K, self._mat = None, None      # (H, A) written out, of the last |K| (matrices())

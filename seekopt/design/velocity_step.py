@@ -112,7 +112,8 @@ class StepQP:
     def __init__(self, maps, nmax, horizon, k0, fs, delay_samples, imax, band, bias, hf, nlo,
                  settings, rho=1e-2, rho_w=1e-3, quiet=0.2, quiet_after=32):
         from seekopt.design.profiles import rigid_position_kernel
-        from seekopt.design.qp import pes_row_samples, toeplitz_rows
+        from seekopt.design.loop_maps import toeplitz_rows
+        from seekopt.design.qp_samples import pes_row_samples
         from seekopt.design.solvers import SolverChain
         t0 = time.perf_counter()
         N, H, L = int(nmax), int(horizon), maps[0].L

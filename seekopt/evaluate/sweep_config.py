@@ -94,21 +94,35 @@ def cell_key(tpi: float, tracks: float) -> str:
     return f"tpi{_fmt(tpi)}_k{_fmt(tracks)}"
 
 
-_CODE = ("seekopt.design.ocp", "seekopt.design.qp", "seekopt.design.metrics", "seekopt.drive.simulator",
-         "seekopt.design.profiles", "seekopt.evaluate.bench", "seekopt.evaluate.sweep_cell", "seekopt.drive.controller",
-         "seekopt.drive.sections", "identification.model.plant", "identification.model.effects")
+#: What a cell's numbers come from: every module of these packages, and these modules (the design
+#: chain, the one simulator and the plant; a module split out of another is covered without a list).
+_CODE_PACKAGES = ("seekopt.design", "seekopt.drive", "identification.model")
+_CODE_MODULES = ("seekopt.evaluate.bench", "seekopt.evaluate.sweep_cell")
+
+
+def code_files() -> list:
+    """``[(module name, path)]`` of the sources :func:`code_hash` covers: every ``.py`` file of
+    :data:`_CODE_PACKAGES`, in name order, and :data:`_CODE_MODULES`."""
+    import importlib.util
+    files = []
+    for name in _CODE_PACKAGES:
+        spec = importlib.util.find_spec(name)
+        for d in (spec.submodule_search_locations or []) if spec else []:
+            files += [(f"{name}.{f.stem}", f) for f in sorted(Path(d).glob("*.py"))]
+    for name in _CODE_MODULES:
+        spec = importlib.util.find_spec(name)
+        if spec and spec.origin and os.path.exists(spec.origin):
+            files.append((name, Path(spec.origin)))
+    return files
 
 
 def code_hash() -> str:
     """Hash of the sources that produce a cell's numbers (provenance; a resumed sweep warns when
-    its saved cells came from other code)."""
+    its saved cells came from other code), over :func:`code_files`."""
     import hashlib
-    import importlib.util
     h = hashlib.sha256()
-    for name in _CODE:
-        spec = importlib.util.find_spec(name)
-        if spec and spec.origin and os.path.exists(spec.origin):
-            h.update(name.encode() + Path(spec.origin).read_bytes())
+    for name, f in code_files():
+        h.update(name.encode() + f.read_bytes())
     return h.hexdigest()[:12]
 
 
