@@ -9,6 +9,8 @@ import math
 import numpy as np
 import pytest
 
+from seekopt.design.solver_settings import BASE_FALLBACKS
+
 from seekopt.design import solvers as solvmod
 from seekopt.design.baselines import baseline_profile
 from seekopt.evaluate.bench import perturbed_plant
@@ -165,6 +167,7 @@ def test_failed_solve_is_never_returned(setup, monkeypatch):
 
     monkeypatch.setattr(solvmod.ConicQP, "solve", failing)
     monkeypatch.setattr(solvmod.DaqpQP, "solve", failing)
+    monkeypatch.setattr(solvmod.PiqpQP, "solve", failing)      # every solver of the chain
     with pytest.raises(DesignError, match="solver crashed"):
         d.design(10.0)
     with pytest.raises(DesignError, match="solver crashed"):
@@ -326,7 +329,9 @@ def test_cycling_primary_falls_back_and_designs_the_same(setup, monkeypatch):
 
     monkeypatch.setattr(solvmod.ConicQP, "solve", cycling)
     monkeypatch.setattr(solvmod.DaqpQP, "solve", lambda self, *a, **k: cycle(real_pkg(self, *a, **k), "daqp_pkg"))
-    d = SeekDesigner(SeekProblem(design, ctrl, IMAX, blind_pes_points=0))
+    # the chain without PIQP (the default's first fallback where installed, tests/test_piqp_solver.py): qpOASES next
+    d = SeekDesigner(SeekProblem(design, ctrl, IMAX, blind_pes_points=0,
+                                 solver=SolverSettings(fallbacks=BASE_FALLBACKS)))
     res = d.design(50.0)
     assert res.settle_samples == ref.settle_samples
     assert res.fallback_solves == res.n_solves and res.unresolved_solves == 0

@@ -11,6 +11,7 @@ import pytest
 from seekopt.design import solvers as solvmod
 from seekopt.design.designer import SeekDesigner
 from seekopt.design.problem import SeekProblem, SolverSettings
+from seekopt.design.solver_settings import BASE_FALLBACKS
 from seekopt.drive.controller import Controller
 from seekopt.drive.presets import default_truth_plant
 from tests.test_daqp_solver import _random_qps, _seek_qps
@@ -71,12 +72,12 @@ def test_chain_moves_on_from_piqp_trouble_and_piqp_proves_for_the_chain():
 
 @needs_piqp
 def test_designer_with_piqp_first_fallback_designs_the_same(plant_ctrl):
-    """PIQP as the first fallback of the one-plant designer replaces daqp's phase-1 proofs (none run),
-    and the lengths are the default chain's."""
+    """PIQP as the first fallback of the one-plant designer (the default where the package is installed)
+    replaces daqp's phase-1 proofs (none run), and the lengths are those of the chain without PIQP."""
     plant, ctrl = plant_ctrl
-    base = SeekDesigner(SeekProblem(plant, ctrl, IMAX))
-    fb = ("piqp",) + SolverSettings().fallbacks
-    alt = SeekDesigner(SeekProblem(plant, ctrl, IMAX, solver=SolverSettings(fallbacks=fb)))
+    base = SeekDesigner(SeekProblem(plant, ctrl, IMAX, solver=SolverSettings(fallbacks=BASE_FALLBACKS)))
+    alt = SeekDesigner(SeekProblem(plant, ctrl, IMAX))
+    assert alt.settings.chain[:2] == (solvmod.DAQP_PKG, solvmod.PIQP)
     for K in (50.0, 500.0):
         a, b = base.design(K), alt.design(K)
         assert a.settle_samples == b.settle_samples
@@ -86,8 +87,97 @@ def test_designer_with_piqp_first_fallback_designs_the_same(plant_ctrl):
 
 
 def test_piqp_missing_is_an_import_error(monkeypatch):
-    """Without the optional package, asking for ``piqp`` fails loudly (never a silent other solver)."""
+    """Without the optional package, asking for ``piqp`` fails loudly (never a silent other solver), and
+    the default chain is the one without it."""
     monkeypatch.setitem(sys.modules, "piqp", None)
     with pytest.raises(ImportError):
         solvmod.make_qp_solver(3, 2, solvmod.PIQP)
-    assert not solvmod.piqp_available()
+    assert not solvmod.piqp_available() and not solvmod.piqp_installed()
+    assert SolverSettings().fallbacks == BASE_FALLBACKS
+
+
+@needs_piqp
+def test_default_chain_asks_piqp_first_and_free_rows_change_nothing():
+    """Where the package is installed PIQP is the first fallback.  Rows without bounds (the full QP's free
+    rows) are left out of PIQP's problem: the same answer as without them, zero multipliers on them."""
+    assert solvmod.piqp_installed() and SolverSettings().fallbacks == (solvmod.PIQP,) + BASE_FALLBACKS
+    rng = np.random.default_rng(3)
+    n = 6
+    M = rng.standard_normal((n, n))
+    H, g = M @ M.T + np.eye(n), rng.standard_normal(n)
+    A = rng.standard_normal((4, n))
+    lba, uba = np.array([-1.0, -0.2, 0.3, -0.5]), np.array([1.0, 0.2, 0.3, 0.5])     # an equality too
+    box = (-np.ones(n), np.ones(n))
+    a = solvmod.PiqpQP(n, 4).solve(H, g, A, lba, uba, *box)
+    free = rng.standard_normal((3, n))
+    b = solvmod.PiqpQP(n, 7).solve(H, g, np.vstack([A[:2], free, A[2:]]),
+                                   np.r_[lba[:2], [-np.inf] * 3, lba[2:]], np.r_[uba[:2], [np.inf] * 3, uba[2:]], *box)
+    assert a.outcome is b.outcome is solvmod.QPStatus.OPTIMAL
+    assert np.allclose(a.x, b.x, atol=1e-9) and np.all(b.lam_a[2:5] == 0.0)
+    assert np.allclose(b.lam_a[[0, 1, 5, 6]], a.lam_a, atol=1e-8)
+
+
+@needs_piqp
+def test_piqp_answer_keeps_only_the_active_rows_multipliers():
+    """An interior-point answer's small multipliers on inactive rows are zeroed (they would start daqp from
+    wrong rows); the active rows keep theirs and the optimality conditions still hold."""
+    rng = np.random.default_rng(5)
+    n, m = 8, 12
+    M = rng.standard_normal((n, n))
+    H, g = M @ M.T + np.eye(n), 3.0 * rng.standard_normal(n)
+    A = rng.standard_normal((m, n))
+    lba, uba, lbx, ubx = -0.3 * np.ones(m), 0.3 * np.ones(m), -np.ones(n), np.ones(n)
+    a = solvmod.PiqpQP(n, m).solve(H, g, A, lba, uba, lbx, ubx)
+    assert a.outcome is solvmod.QPStatus.OPTIMAL
+    r = A @ a.x
+    active = np.minimum(uba - r, r - lba) <= 1e-7
+    assert active.any() and (~active).any()
+    assert np.all(a.lam_a[~active] == 0.0) and np.all(a.lam_a[active] != 0.0)
+    assert solvmod.kkt_holds(H, g, A, lba, uba, lbx, ubx, a.x, a.lam_a, a.lam_x)
+    b = solvmod.DaqpQP(n, m).solve(H, g, A, lba, uba, lbx, ubx)        # the active-set solver's active rows
+    assert np.array_equal(np.abs(b.lam_a) > 0, active)
+
+
+@needs_piqp
+def test_daqp_leaves_its_proximal_retry_to_piqp_when_piqp_is_next():
+    assert solvmod.SolverChain(3, 2, (solvmod.DAQP_PKG, solvmod.PIQP)).get(solvmod.DAQP_PKG).prox_retry is False
+    assert solvmod.SolverChain(3, 2, (solvmod.DAQP_PKG, "daqp")).get(solvmod.DAQP_PKG).prox_retry is True
+
+
+class _FalselyInfeasible:
+    """A primary that calls every QP infeasible without a certificate (as the ``daqp`` package did on
+    ill-conditioned reduced QPs of long robust seeks)."""
+    name, warm_duals = solvmod.DAQP_PKG, False
+
+    def solve(self, H, g, A, lba, uba, lbx, ubx, x0=None, lam_a0=None, lam_x0=None):
+        n, m = len(g), len(A)
+        return solvmod.QPSolution(np.full(n, np.nan), np.zeros(m), np.zeros(n), False, "-1", 0.0, 0.0,
+                                  solvmod.QPStatus.INFEASIBLE, solvmod.DAQP_PKG, proven=False)
+
+
+@needs_piqp
+def test_a_search_step_with_a_second_opinion_is_not_ended_by_an_unproven_infeasible(plant_ctrl):
+    """``WorkingSetQP.solve(confirm=False)``: the primary's unproven "infeasible" ends a search step as it
+    is; with ``second_opinion=True`` the chain's next solver re-solves the reduced QP and its answer
+    continues the rounds: the full QP's optimum."""
+    from seekopt.design.working_set import WorkingSetQP
+    plant, ctrl = plant_ctrl
+    d = SeekDesigner(SeekProblem(plant, ctrl, IMAX))
+    res = d.design(150.0)
+    N = res.settle_samples
+    qp = d._structure(d._classes(N)[0], False)
+    args = (150.0, N, d.beta, d.gamma, d.hf_tol if d.guard_bands else None, d.slew)
+
+    def chain(n, m):
+        c = solvmod.SolverChain(n, m, (solvmod.DAQP_PKG, solvmod.PIQP))
+        c._solvers[solvmod.DAQP_PKG] = _FalselyInfeasible()
+        return c
+    step = WorkingSetQP(qp, chain).solve(*args, confirm=False)
+    assert step.outcome is solvmod.QPStatus.INFEASIBLE and step.unconfirmed
+    second = WorkingSetQP(qp, chain).solve(*args, confirm=False, second_opinion=True)
+    assert second.success and second.solver == solvmod.PIQP
+    data = qp.numeric(*args)
+    full = solvmod.DaqpQP(qp.n, qp.m).solve(*data)
+    f = lambda x: 0.5 * x @ data[0] @ x + data[1] @ x      # noqa: E731  (the optimum's value: x itself is
+    assert full.success and abs(f(second.x) - f(full.x)) <= 1e-7 * abs(f(full.x))   # ill-determined, cond(H))
+    assert solvmod.constraint_violation(data[2], second.x, *data[3:]) <= 1e-8

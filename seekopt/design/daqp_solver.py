@@ -48,16 +48,22 @@ class DaqpQP:
         ``iter_limit=5000, primal_tol=1e-9`` (the settings :class:`ConicQP` gives casadi's daqp).
     name : str
         ``daqp_pkg``, or ``daqp_prox`` for the proximal fallback (:data:`seekopt.design.solvers.PROX_OPTIONS`).
+    prox_retry : bool
+        Retry a cold solve that cycles or hits the iteration limit with proximal iterations (above).  False
+        where PIQP is the next solver of the chain (:class:`seekopt.design.solvers.SolverChain`): on the
+        long robust seeks' reduced QPs (cond(H) ~ 3e11) the retry ran its 20000 iterations for 19 s CPU
+        and failed, where PIQP answered in 0.05 s (docs/results_sweep_scaling.md, session 9).
     """
 
     name = DAQP_PKG
     warm_duals = True
 
-    def __init__(self, n: int, m: int, options: dict | None = None, name: str = DAQP_PKG):
+    def __init__(self, n: int, m: int, options: dict | None = None, name: str = DAQP_PKG, prox_retry: bool = True):
         import daqp
         self._daqp = daqp
         self.n, self.m, self.plugin = int(n), int(m), name
         self.name = name
+        self.prox_retry = bool(prox_retry)
         self.settings = {"iter_limit": 5000, "primal_tol": 1e-9}
         self.settings.update(options or {})
         self.warm_retries = 0           # warm starts that failed and were solved cold (statistics)
@@ -99,7 +105,7 @@ class DaqpQP:
             # a warm answer stands only when it satisfies the optimality conditions, else solved cold
             self.warm_retries += 1
             x, flag, lam = self._call(H, g, A, bu, bl, sense, None)
-        if flag in (-2, -4) and "eps_prox" not in self.settings:
+        if flag in (-2, -4) and self.prox_retry and "eps_prox" not in self.settings:
             # cycling or the iteration limit: an ill-conditioned Hessian (cond ~ 1e10 at K >= 3888); the
             # proximal iterations answer it in ~1 s where casadi's daqp cycles too (PROX_OPTIONS)
             self.prox_retries += 1

@@ -208,7 +208,7 @@ class SeekDesigner(SettleSearch):
         return self._ws[qp]
 
     def _solve(self, qp: _qp.SeekQP, K, n, beta, stats: SolveStats, warm=None, epigraph=False, confirm=True,
-               nominal_from=None):
+               nominal_from=None, second_opinion=False):
         hf_tol = self.hf_tol if self.guard_bands else None
         args = (K, n, None if epigraph else beta, self.gamma, hf_tol, self.slew, nominal_from)
         tol = self.settings.violation_tol
@@ -220,7 +220,7 @@ class SeekDesigner(SettleSearch):
         if self.settings.working_set:     # rows screened on a plant set and big structures, else all rows
             screen = len(self.plants) > 1 or qp.m >= WORKING_SET_MIN_ROWS
             sol = self._working_set(qp).solve(*args[:-1], x0=warm, check=check, confirm=confirm, screen=screen,
-                                              nominal_from=nominal_from)
+                                              nominal_from=nominal_from, second_opinion=second_opinion)
             if getattr(sol, "unconfirmed", False):
                 stats.unconfirmed.add((id(qp), n))
         else:

@@ -97,7 +97,10 @@ class SettleSearch:
         (10-250 ms each, a third of a robust design's CPU).  Nothing is declared infeasible from it:
         the design returned is verified either way, at worst the first stage's or a nominal settle one
         sample later than a proof would have found (none in ``studies/design_speed.py``'s 26 robust cells:
-        every such verdict the confirmation re-checked was proven infeasible)."""
+        every such verdict the confirmation re-checked was proven infeasible).  The chain's next solver
+        gives its opinion first (``WorkingSetQP.solve(second_opinion=True)``: one solve, no certificate): the
+        ``daqp`` package has called feasible reduced QPs of long robust seeks infeasible (cond(H) ~ 3e11),
+        which ended the refinement one sample late (600k TPI, 5456 tracks: nominal settle 89 against 88)."""
         if len(self.plants) < 2 or not self.problem.nominal_first or N - 1 <= lo:
             return None
         n_top = min(N + self.problem.worst_case_slack_samples(), self.max_samples)
@@ -106,7 +109,8 @@ class SettleSearch:
             qp, warm = self._structure(self._classes(n_top)[0], False), None
 
         def solve(n_set, n0, warm=None):
-            return self._solve(qp, K, n_set, self.beta, stats, warm=warm, confirm=False, nominal_from=n0)
+            return self._solve(qp, K, n_set, self.beta, stats, warm=warm, confirm=False, nominal_from=n0,
+                               second_opinion=True)
 
         def probe(n0, warm=None, _confirm=None):     # the search's protocol; never confirmed here (above)
             return solve(n_top, n0, warm)

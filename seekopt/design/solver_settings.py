@@ -8,15 +8,33 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 
 from seekopt.design.problem_checks import ProblemError
-from seekopt.design.solvers import DAQP_PKG, QP_SOLVERS
+from seekopt.design.solvers import DAQP_PKG, PIQP, QP_SOLVERS, piqp_installed
 
-__all__ = ["SolverSettings", "SIZE_CLASSES"]
+__all__ = ["SolverSettings", "SIZE_CLASSES", "BASE_FALLBACKS", "default_fallbacks"]
 
 #: Seek-length classes [samples]: one QP structure (and solver) per class, built on first use.  Above
 #: 128 samples (seeks of about 2500 tracks and longer) the classes are 1/8 to 1/4 apart: the dense QP's
 #: cost grows steeply with its size (K = 10000: class 256 took 45-75 s per solve, 224 about 25 s).
 SIZE_CLASSES = (8, 16, 24, 32, 48, 64, 96, 128, 144, 160, 176, 192, 208, 224, 240, 256, 288, 320, 352, 384,
                 448, 512)
+
+
+#: The fallbacks without PIQP (the chain where the ``piqp`` package is not installed).
+BASE_FALLBACKS = ("daqp", "daqp_prox", "qpoases", "highs")
+
+
+def default_fallbacks() -> tuple:
+    """:attr:`SolverSettings.fallbacks` by default: PIQP first when the package is installed
+    (a dependency: absent only where it could not be installed), then :data:`BASE_FALLBACKS`.
+
+    Why PIQP first: on the long robust rest-to-rest seeks of a sweep (80-110 samples, cond(H) 1e10-4e11) daqp
+    cycles on some reduced QPs, and the rest of the chain was the cost -- casadi's daqp and ``daqp_prox``
+    cycle too (the proximal iterations up to 19 s CPU), qpOASES stops at its recalculation limit, HiGHS at
+    its time limit, and then the full QP (5392 rows) went through the chain again, qpOASES answering after
+    32 s CPU.  PIQP solved each of those reduced QPs in 0.02-0.2 s (docs/results_sweep_scaling.md, session 9).
+    As the first fallback it also re-checks daqp's unproven "infeasible" with a verifiable certificate
+    (docs/results_speed.md, "QP solvers other than daqp")."""
+    return ((PIQP,) if piqp_installed() else ()) + BASE_FALLBACKS
 
 
 @dataclass
@@ -33,7 +51,8 @@ class SolverSettings:
     fallbacks : tuple of str
         Solvers tried, in order, on the same QP when the primary ends in numerical trouble (daqp
         cycling), an iteration limit or an answer that fails the constraint re-check -- before
-        anything is called infeasible (:class:`seekopt.design.solvers.SolverChain`).  The first
+        anything is called infeasible (:class:`seekopt.design.solvers.SolverChain`); default
+        :func:`default_fallbacks` (``piqp`` first when that optional package is installed).  The first
         fallback also re-checks an "infeasible" of ``daqp_pkg`` that the answer rests on (the package
         returns no usable multipliers with it; :class:`seekopt.design.working_set.WorkingSetQP`);
         ``daqp_prox`` (the package with proximal iterations) answers where an ill-conditioned Hessian
@@ -65,7 +84,7 @@ class SolverSettings:
     """
 
     qp_solver: str = DAQP_PKG
-    fallbacks: tuple = ("daqp", "daqp_prox", "qpoases", "highs")
+    fallbacks: tuple = field(default_factory=default_fallbacks)
     options: dict = field(default_factory=dict)
     max_samples: int = 512
     size_classes: tuple = SIZE_CLASSES

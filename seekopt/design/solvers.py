@@ -38,12 +38,12 @@ import numpy as np
 
 from seekopt.design.certificates import farkas_certificate, proves_infeasible  # noqa: F401
 from seekopt.design.daqp_solver import PROX_OPTIONS, DaqpQP, kkt_holds  # noqa: F401
-from seekopt.design.piqp_solver import PIQP, PiqpQP, piqp_available  # noqa: F401
+from seekopt.design.piqp_solver import PIQP, PiqpQP, piqp_available, piqp_installed  # noqa: F401
 from seekopt.design.qp_status import (DAQP_PKG, DAQP_PROX, QPSolution, QPStatus, _nan_safe, _quiet_stdout,  # noqa: F401
                                       classify_status, dm)
 
 __all__ = ["QPStatus", "classify_status", "QPSolution", "ConicQP", "DaqpQP", "IpoptQP", "make_qp_solver",
-           "SolverChain", "QP_PLUGINS", "DAQP_PKG", "DAQP_PROX", "PIQP", "PiqpQP", "piqp_available", "QP_SOLVERS", "dm", "kkt_holds", "proves_infeasible", "farkas_certificate",
+           "SolverChain", "QP_PLUGINS", "DAQP_PKG", "DAQP_PROX", "PIQP", "PiqpQP", "piqp_available", "piqp_installed", "QP_SOLVERS", "dm", "kkt_holds", "proves_infeasible", "farkas_certificate",
            "constraint_violation", "violation_of"]
 
 #: ``casadi.conic`` plugins the designer accepts.
@@ -232,13 +232,14 @@ def violation_of(ax, size, x, lba, uba, lbx, ubx) -> float:
     return float(max(np.max(v), 0.0)) if v.size else 0.0
 
 
-def make_qp_solver(n: int, m: int, solver: str = DAQP_PKG, options: dict | None = None):
+def make_qp_solver(n: int, m: int, solver: str = DAQP_PKG, options: dict | None = None, prox_retry: bool = True):
     """:class:`DaqpQP` for ``solver="daqp_pkg"`` (and, proximal, ``"daqp_prox"``), :class:`PiqpQP` for ``"piqp"``
-    (:class:`ImportError` without the package), :class:`IpoptQP` for ``"ipopt"``, else :class:`ConicQP` with that plugin."""
+    (:class:`ImportError` without the package), :class:`IpoptQP` for ``"ipopt"``, else :class:`ConicQP` with that plugin.
+    ``prox_retry``: :class:`DaqpQP`'s own proximal retry of a cycling solve (``daqp_pkg`` only)."""
     if solver == PIQP:
         return PiqpQP(n, m, options)
     if solver == DAQP_PKG:
-        return DaqpQP(n, m, options)
+        return DaqpQP(n, m, options, prox_retry=prox_retry)
     if solver == DAQP_PROX:
         return DaqpQP(n, m, dict(PROX_OPTIONS, **(options or {})), name=DAQP_PROX)
     return IpoptQP(n, m, options) if solver == "ipopt" else ConicQP(n, m, solver, options)
@@ -287,7 +288,12 @@ class SolverChain:
 
     def get(self, name: str):
         if name not in self._solvers:
-            self._solvers[name] = make_qp_solver(self.n, self.m, name, self.options.get(name))
+            # the package's proximal retry of a cycling solve is left to PIQP when PIQP is asked next (it
+            # answers those QPs in 0.02-0.2 s where the retry took up to 19 s CPU and failed)
+            i = self.names.index(name) if name in self.names else -1
+            nxt = self.names[i + 1] if 0 <= i < len(self.names) - 1 else None
+            kw = {"prox_retry": False} if name == DAQP_PKG and nxt == PIQP else {}
+            self._solvers[name] = make_qp_solver(self.n, self.m, name, self.options.get(name), **kw)
             if self._on_build is not None:
                 self._on_build(name)
         return self._solvers[name]

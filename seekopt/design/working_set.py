@@ -123,13 +123,17 @@ class WorkingSetQP:
 
     def solve(self, K: float, nseek: int, beta, gamma: float, hf_tol, slew_a_per_s=None, x0=None,
               check=None, confirm: bool = True, screen: bool = True,
-              nominal_from: int | None = None) -> QPSolution:
+              nominal_from: int | None = None, second_opinion: bool = False) -> QPSolution:
         """The QP of ``SeekQP.data(K, nseek, beta, gamma, hf_tol, slew_a_per_s, nominal_from)``; ``check(x, A)``
         (full-problem re-check, returns a note or '') as in :meth:`SolverChain.solve`.
 
         ``confirm=False``: a reduced "infeasible" of the primary that fails the Farkas check is
         returned as it is, marked ``sol.unconfirmed = True`` (a search step; the caller confirms the
-        lengths its answer rests on with ``confirm=True``: the full QP decides).
+        lengths its answer rests on with ``confirm=True``: the full QP decides).  With
+        ``second_opinion=True`` the chain's next solver re-solves that reduced QP first, and its answer,
+        if it finds one, continues the rounds (a search step whose "infeasible" nothing will confirm:
+        the nominal-first refinement; on the long robust seeks' reduced QPs, cond(H) ~ 3e11, the ``daqp``
+        package called feasible QPs infeasible there, which PIQP solved in 0.08 s).
 
         ``screen=False``: no row screening -- one solve of the QP on its free variables with every
         row that has a bound (the fixed variables substituted, the free rows dropped).  That QP is the
@@ -188,6 +192,13 @@ class WorkingSetQP:
             self.rounds += 1
             wall, cpu = wall + sol.solve_time_s, cpu + sol.cpu_time_s
             attempts += sol.attempts
+            if (second_opinion and not confirm and screen and sol.outcome is QPStatus.INFEASIBLE
+                    and sol.proven is False and sol.solver == chain.name and len(chain.names) > 1):
+                alt = chain.solve(*data, start=1, prove=False)      # the next solver's verdict first
+                wall, cpu = wall + alt.solve_time_s, cpu + alt.cpu_time_s
+                attempts += alt.attempts
+                if alt.outcome is QPStatus.OPTIMAL:
+                    sol = alt
             if sol.outcome is QPStatus.INFEASIBLE:
                 # a fallback's "infeasible" (asked after the primary's trouble), or a casadi solver's on
                 # every row, stands at that solver's trust as before; the primary's needs a verified
