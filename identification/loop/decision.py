@@ -51,7 +51,7 @@ def passes(step: Step, cur, st: LoopSettings) -> bool:
     An added effect passes on the output error itself or on its rate (first difference within
     each window, :meth:`identification.loop.windows.Windows.rate`): the same three rules on the
     rate (its BIC on the fit data, its validation RMS, the seeks whose rate error drops), with the
-    output error's validation RMS not risen by more than ``min_validation_drop``.  The RMS of
+    output error's validation RMS not risen by more than ``max_level_rise_on_rate``.  The RMS of
     the output error is dominated by the force noise the rigid body integrates twice; an
     amplifier lag that an identification absorbed as extra delay and bent mode gains changes
     it by 0.3 % on the combination drive of ``studies/loop_to_design.py`` but its rate by 17 %,
@@ -82,7 +82,7 @@ def _level_validates(n_params, rms0, rms1, st: LoopSettings) -> bool:
 
 def _rate_validates(n_params, rms0, rms1, rate0, rate1, st: LoopSettings) -> bool:
     return (n_params > 0 and rate1 <= (1.0 - st.min_validation_drop) * rate0
-            and rms1 <= (1.0 + st.min_validation_drop) * rms0)
+            and rms1 <= (1.0 + st.max_level_rise_on_rate) * rms0)
 
 
 def _on_level(step: Step, cur, st: LoopSettings) -> bool:

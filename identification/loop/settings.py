@@ -16,8 +16,16 @@ class LoopSettings:
 
     min_validation_drop : float
         Required relative drop of the validation RMS [-].
-    min_bic_drop : float
-        Required drop of the output-error BIC on the fit data [nats].
+    max_level_rise_on_rate : float
+        An added effect that passes on the *rate* of the output error (its first difference
+        within each window; :func:`identification.loop.decision.passes`) may raise the output
+        error's validation RMS by at most this [-].  The rate is judged with ``min_validation_drop``
+        like the level; this is the level's allowance.  Measured: a truly present amplifier lag
+        (the combination drive of ``studies/loop_to_design.py``) accepted on the rate raised the
+        level 3.1 % (0.3038 -> 0.3131 track; 0.3030 after the linear part was identified again
+        with it; -0.1 % on the independent drive's combo log), so the allowance must exceed that; on the independent 50.4 kHz drive's clean,
+        kt, bias, lag, delay and combo logs no candidate that is not the drive's effect passed the
+        other rate rules (``docs/results_loop.md``).
     min_improved_seeks : float
         Required fraction of validation seeks whose squared error drops [-] (the RMS is
         dominated by the longest seeks; the improvement must be consistent).
@@ -84,6 +92,7 @@ class LoopSettings:
     """
 
     min_validation_drop: float = 0.05
+    max_level_rise_on_rate: float = 0.05
     min_bic_drop: float = 6.0
     min_improved_seeks: float = 0.6
     proxy_margin: float = 0.05
