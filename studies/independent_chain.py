@@ -35,7 +35,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import subprocess
 import sys
 import time
@@ -53,6 +52,9 @@ from seekopt.design.metrics import settle_time  # noqa: E402
 from seekopt.design.profiles import Profile  # noqa: E402
 from tests.drives import Schedule, make_log, nss_drive, nss_truth, run  # noqa: E402
 
+sys.path.insert(0, str(ROOT / "studies"))
+from loop_to_design import cli  # noqa: E402  (the CLI as a user runs it: one definition for both studies)
+
 IMAX = 0.3
 BAND = 0.1
 STROKE = (0.0, 60000.0)
@@ -67,12 +69,6 @@ EFFECTS = {"clean": [], "kt": KT, "bias": BIAS, "combo": KT + BIAS + LAG}
 
 def truth(case: str):
     return nss_truth().with_effects(EFFECTS[case])
-
-
-def cli(*args) -> subprocess.CompletedProcess:
-    env = dict(os.environ, PYTHONPATH=str(ROOT), OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
-    return subprocess.run([sys.executable, "-m", "seekopt.app.cli", *map(str, args)], capture_output=True,
-                          text=True, env=env)
 
 
 def ensure(cp: subprocess.CompletedProcess, what: str) -> None:
