@@ -17,7 +17,7 @@ from seekopt.drive.presets import default_truth_plant
 from tests.test_daqp_solver import _random_qps, _seek_qps
 
 IMAX = 0.3
-needs_piqp = pytest.mark.skipif(not solvmod.piqp_available(), reason="piqp not installed (optional)")
+needs_piqp = pytest.mark.skipif(not solvmod.piqp_available(), reason="piqp not installed (a dependency; absent only where it could not be installed)")
 
 
 @pytest.fixture(scope="module")

@@ -23,9 +23,12 @@ class LoopSettings:
         like the level; this is the level's allowance.  Measured: a truly present amplifier lag
         (the combination drive of ``studies/loop_to_design.py``) accepted on the rate raised the
         level 3.1 % (0.3038 -> 0.3131 track; 0.3030 after the linear part was identified again
-        with it; -0.1 % on the independent drive's combo log), so the allowance must exceed that; on the independent 50.4 kHz drive's clean,
-        kt, bias, lag, delay and combo logs no candidate that is not the drive's effect passed the
-        other rate rules (``docs/results_loop.md``).
+        with it; -0.1 % on the independent drive's combo log), so the allowance must exceed that;
+        on the independent 50.4 kHz drive's clean, kt, bias, lag, delay and combo logs no
+        candidate that is not the drive's effect passed the other rate rules
+        (``docs/results_loop.md``).
+    min_bic_drop : float
+        Required drop of the output-error BIC on the fit data [nats].
     min_improved_seeks : float
         Required fraction of validation seeks whose squared error drops [-] (the RMS is
         dominated by the longest seeks; the improvement must be consistent).

@@ -52,7 +52,7 @@ class SolverSettings:
         Solvers tried, in order, on the same QP when the primary ends in numerical trouble (daqp
         cycling), an iteration limit or an answer that fails the constraint re-check -- before
         anything is called infeasible (:class:`seekopt.design.solvers.SolverChain`); default
-        :func:`default_fallbacks` (``piqp`` first when that optional package is installed).  The first
+        :func:`default_fallbacks` (``piqp`` first when the package is installed).  The first
         fallback also re-checks an "infeasible" of ``daqp_pkg`` that the answer rests on (the package
         returns no usable multipliers with it; :class:`seekopt.design.working_set.WorkingSetQP`);
         ``daqp_prox`` (the package with proximal iterations) answers where an ill-conditioned Hessian

@@ -11,7 +11,7 @@ All solvers take ``min 1/2 x'Hx + g'x  s.t. lba <= A x <= uba, lbx <= x <= ubx``
   ill-conditioned Hessians where both daqps cycle;
 * :class:`ConicQP` -- ``casadi.conic`` with a QP plugin (``daqp``, ``qpoases``, ``highs``,
   ``osqp``, ``proxqp``, ``qrqp``), built once for a fixed size;
-* :class:`PiqpQP` (``piqp``, optional package) -- PIQP's dense interface: no faster than the
+* :class:`PiqpQP` (``piqp``, a dependency; the default first fallback) -- PIQP's dense interface: no faster than the
   ``daqp`` package on these QPs, but its "infeasible" carries multipliers that usually pass the Farkas
   check (``proven``), so as the first fallback it proves the lengths the package reports infeasible
   without a certificate (:mod:`seekopt.design.piqp_solver`);
@@ -43,8 +43,9 @@ from seekopt.design.qp_status import (DAQP_PKG, DAQP_PROX, QPSolution, QPStatus,
                                       classify_status, dm)
 
 __all__ = ["QPStatus", "classify_status", "QPSolution", "ConicQP", "DaqpQP", "IpoptQP", "make_qp_solver",
-           "SolverChain", "QP_PLUGINS", "DAQP_PKG", "DAQP_PROX", "PIQP", "PiqpQP", "piqp_available", "piqp_installed", "QP_SOLVERS", "dm", "kkt_holds", "proves_infeasible", "farkas_certificate",
-           "constraint_violation", "violation_of"]
+           "SolverChain", "QP_PLUGINS", "DAQP_PKG", "DAQP_PROX", "PIQP", "PiqpQP", "piqp_available", "piqp_installed",
+           "QP_SOLVERS", "dm", "kkt_holds", "proves_infeasible", "farkas_certificate", "constraint_violation",
+           "violation_of"]
 
 #: ``casadi.conic`` plugins the designer accepts.
 QP_PLUGINS = ("daqp", "qpoases", "highs", "osqp", "proxqp", "qrqp")

@@ -120,7 +120,6 @@ def _played_on_set(designer, res, settle: float):
     return pred
 
 
-
 def _design_with_effects(args, plant, controller, robust, start, names) -> int:
     """``seekopt design`` on a plant with effects: Ipopt over the full closed loop, from ``start``
     (:class:`seekopt.design.nlp.EffectAwareDesigner`).  Every failure (a band the loop cannot hold,
